@@ -1,0 +1,193 @@
+"""The ``pointcvx`` command line.
+
+Every failure a user can cause ends in one line on stderr and a non-zero exit status:
+1 for bad input or output problems, 2 for bad usage, 3 for an internal error, 130 if interrupted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from . import __version__
+from .errors import OutputError, PointcvxError
+
+log = logging.getLogger("pointcvx")
+
+EXIT_INPUT, EXIT_USAGE, EXIT_INTERNAL, EXIT_INTERRUPT = 1, 2, 3, 130
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str) -> None:  # one line, exit 2
+        self.exit(EXIT_USAGE, f"pointcvx: error: {message} (see pointcvx --help)\n")
+
+
+def _add_load_options(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("loading (all inputs)")
+    g.add_argument("-n", "--points", type=int, default=None, metavar="N",
+                   help="cap the point count (meshes/CAD: samples to draw; default 20000 for "
+                        "meshes, every point for splats and scans)")
+    g.add_argument("--seed", type=int, default=0, help="seed of every random choice (default 0)")
+    g.add_argument("--no-normalize", action="store_true",
+                   help="keep input units instead of normalising to [-1, 1]^3")
+    g = p.add_argument_group("meshes and CAD")
+    g.add_argument("--orient-rays", type=int, default=8, metavar="K",
+                   help="rays per side in the outward test of mesh faces (default 8)")
+    g.add_argument("--cad-mesh-size", type=float, default=0.01, metavar="F",
+                   help="CAD tessellation size as a fraction of the part's diagonal (default 0.01)")
+    g = p.add_argument_group("Gaussian splats")
+    g.add_argument("--min-opacity", type=float, default=0.1, metavar="A",
+                   help="drop Gaussians with opacity below A (default 0.1)")
+    g.add_argument("--floater-ratio", type=float, default=0.01, metavar="R",
+                   help="drop clusters holding less than R of all Gaussians (default 0.01; 0 = off)")
+    g.add_argument("--samples-per-gaussian", type=int, default=1, metavar="S",
+                   help="points drawn from each Gaussian's ellipsoid (default 1: centres)")
+    g = p.add_argument_group("scans (point clouds without normals)")
+    g.add_argument("--outlier-neighbors", type=int, default=20, metavar="K",
+                   help="neighbours for statistical outlier removal (default 20; 0 = off)")
+    g.add_argument("--outlier-std", type=float, default=2.5, metavar="S",
+                   help="std-dev ratio for statistical outlier removal (default 2.5)")
+    g.add_argument("--voxel-size", type=float, default=None, metavar="V",
+                   help="voxel down-sampling size in input units (default: off)")
+    g.add_argument("--normal-neighbors", type=int, default=24, metavar="K",
+                   help="neighbours used to estimate normals (default 24)")
+
+
+def _load_options(args: argparse.Namespace):
+    from .io import LoadOptions
+
+    return LoadOptions(
+        n_points=args.points, seed=args.seed, normalize=not args.no_normalize,
+        orient_rays=args.orient_rays, cad_mesh_size=args.cad_mesh_size,
+        min_opacity=args.min_opacity, floater_ratio=args.floater_ratio,
+        samples_per_gaussian=args.samples_per_gaussian, outlier_neighbors=args.outlier_neighbors,
+        outlier_std=args.outlier_std, voxel_size=args.voxel_size,
+        normal_neighbors=args.normal_neighbors,
+    )
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(
+        prog="pointcvx",
+        description="Approximate convex decomposition of Gaussian splats, scans, meshes and CAD parts.",
+        epilog="Exit status: 0 ok, 1 bad input or output, 2 bad usage, 3 internal error.",
+    )
+    parser.add_argument("--version", action="version", version=f"pointcvx {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
+
+    info = sub.add_parser(
+        "info",
+        help="load any input and report what was detected",
+        description="Load PATH (mesh, CAD, splat or scan; the format is sniffed from the content), "
+        "print what was detected (modality, format, counts, bounding box, how normals were "
+        "obtained, what was filtered) and optionally write the oriented cloud as a PLY.",
+    )
+    info.add_argument("path", help="input file: OBJ/PLY/STL/OFF/GLB/GLTF mesh, STEP/IGES part, "
+                                   "INRIA/compressed PLY, SPZ or .splat splat, PLY/PCD/XYZ/PTS/LAS scan")
+    info.add_argument("-o", "--output", metavar="OUT.ply",
+                      help="write the oriented cloud (points, normals, colours) to this PLY")
+    info.add_argument("--normalized", action="store_true",
+                      help="write OUT.ply in the normalised [-1, 1]^3 frame instead of input units")
+    info.add_argument("--overwrite", action="store_true", help="replace OUT.ply if it exists")
+    info.add_argument("--json", action="store_true", help="print the report as JSON")
+    info.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors")
+    info.add_argument("-v", "--verbose", action="store_true", help="log details to stderr")
+    _add_load_options(info)
+    info.set_defaults(func=cmd_info)
+    return parser
+
+
+def check_output_path(output: str, inputs: list[str], overwrite: bool) -> Path:
+    """Refuse to write onto an input, or onto an existing file without ``overwrite``."""
+    out = Path(output)
+    for src in inputs:
+        if out.exists() and Path(src).exists() and os.path.samefile(out, src):
+            raise OutputError(f"{out}: refusing to overwrite the input file")
+    if out.exists() and not overwrite:
+        raise OutputError(f"{out}: exists; pass --overwrite to replace it")
+    if not out.parent.exists() and str(out.parent):
+        raise OutputError(f"{out.parent}: output directory does not exist")
+    return out
+
+
+def _report(cloud) -> dict:
+    lo, hi = cloud.in_input_units().bounds if not cloud.normalization.is_identity else cloud.bounds
+    info = dict(cloud.info)
+    report = {
+        "source": info.pop("source", None),
+        "modality": cloud.modality,
+        "format": info.pop("format", None),
+        "points": len(cloud),
+        "bbox_min": np.round(lo, 6).tolist(),
+        "bbox_max": np.round(hi, 6).tolist(),
+        "normalization": {
+            "center": np.round(cloud.normalization.center, 6).tolist(),
+            "scale": round(float(cloud.normalization.scale), 9),
+        },
+        "has_colors": cloud.colors is not None,
+        "has_mesh": cloud.mesh is not None,
+    }
+    report.update(info)
+    return report
+
+
+def cmd_info(args: argparse.Namespace) -> int:
+    from .io import load
+
+    opts = _load_options(args)
+    out = check_output_path(args.output, [args.path], args.overwrite) if args.output else None
+    cloud = load(args.path, opts)
+    report = _report(cloud)
+    if out is not None:
+        target = cloud if args.normalized else cloud.in_input_units()
+        target.save_ply(str(out))
+        report["written"] = str(out)
+    if args.quiet:
+        return 0
+    if args.json:
+        print(json.dumps(report, indent=2, default=str))
+    else:
+        width = max(len(k) for k in report)
+        for key, value in report.items():
+            print(f"{key:<{width}}  {value}")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.command is None:
+        parser.print_help(sys.stderr)
+        return EXIT_USAGE
+    logging.basicConfig(
+        level=logging.DEBUG if getattr(args, "verbose", False) else logging.WARNING,
+        format="pointcvx: %(levelname)s: %(message)s",
+    )
+    try:
+        return args.func(args)
+    except PointcvxError as exc:
+        print(f"pointcvx: error: {exc}", file=sys.stderr)
+        return EXIT_INPUT
+    except KeyboardInterrupt:
+        print("pointcvx: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPT
+    except MemoryError:
+        print("pointcvx: error: out of memory (try a smaller --points)", file=sys.stderr)
+        return EXIT_INPUT
+    except Exception as exc:  # noqa: BLE001 - the CLI promises one line, never a traceback
+        if getattr(args, "verbose", False):
+            log.exception("internal error")
+        first = str(exc).splitlines()[0] if str(exc) else ""
+        print(f"pointcvx: internal error: {type(exc).__name__}: {first} (rerun with -v for details)",
+              file=sys.stderr)
+        return EXIT_INTERNAL
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
