@@ -224,8 +224,10 @@ class OrientedCloud:
         )
 
     def normalized(self) -> OrientedCloud:
-        """The cloud scaled into [-1, 1]^3 (bbox centre at 0, half longest side 1)."""
-        return self.transformed(Normalization.to_unit_cube(self.points))
+        """The cloud scaled into [-1, 1]^3: the bounding box of the mesh (when there is one) or of
+        the points gets its centre at 0 and half its longest side at 1."""
+        ref = self.points if self.mesh is None else np.asarray(self.mesh.vertices)
+        return self.transformed(Normalization.to_unit_cube(ref))
 
     def in_input_units(self) -> OrientedCloud:
         """The cloud mapped back to the input's original units."""
@@ -272,23 +274,28 @@ class OrientedCloud:
         if normals is None:
             from .io.scan import cloud_from_points
 
-            return cloud_from_points(pts, colors=colors, **scan_options)
+            return cloud_from_points(pts, colors=colors, modality=modality, **scan_options)
         return cls(pts, normals, colors=colors, modality=modality,
                    info={"normals": "given"})
 
     @classmethod
-    def from_trimesh(cls, mesh: Any, n_points: int = 20000, seed: int = 0, **options: Any) -> OrientedCloud:
+    def from_trimesh(
+        cls, mesh: Any, n_points: int = 20000, seed: int = 0, **options: Any
+    ) -> OrientedCloud:
         """Sample a ``trimesh.Trimesh`` (or Scene) into an oriented cloud (see pointcvx.io.mesh)."""
         from .io.mesh import cloud_from_mesh
 
         return cloud_from_mesh(mesh, n_points=n_points, seed=seed, **options)
 
     @classmethod
-    def from_open3d(cls, geometry: Any, n_points: int = 20000, seed: int = 0, **options: Any) -> OrientedCloud:
+    def from_open3d(
+        cls, geometry: Any, n_points: int = 20000, seed: int = 0, **options: Any
+    ) -> OrientedCloud:
         """Build from an ``open3d.geometry.PointCloud`` or ``TriangleMesh``.
 
-        A point cloud keeps its normals if it has them (they are re-oriented consistently);
-        otherwise they are estimated. A triangle mesh is sampled like any mesh.
+        A point cloud keeps its points and normals if it has normals (their signs are made
+        consistent); without normals it is cleaned and its normals estimated as a scan. A triangle
+        mesh is sampled like any mesh.
         """
         import open3d as o3d
 
@@ -305,7 +312,10 @@ class OrientedCloud:
             normals = np.asarray(geometry.normals) if geometry.has_normals() else None
             from .io.scan import cloud_from_points
 
-            return cloud_from_points(pts, normals=normals, colors=colors, **options)
+            if normals is not None:  # a cloud with normals is taken as clean unless told otherwise
+                options.setdefault("outlier_neighbors", 0)
+            return cloud_from_points(pts, normals=normals, colors=colors, n_points=n_points,
+                                     seed=seed, modality="points", **options)
         raise InputError(f"cannot build a cloud from {type(geometry).__name__}")
 
     # ------------------------------------------------------------------ conversions

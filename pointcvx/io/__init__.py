@@ -37,12 +37,12 @@ def _loader(modality: str):
 
 
 def finalize(cloud: OrientedCloud, opts: LoadOptions) -> OrientedCloud:
-    """Common post-processing: degeneracy check, [-1, 1]^3 normalisation, seeded point cap."""
+    """Common post-processing: degeneracy check, seeded point cap, [-1, 1]^3 normalisation."""
     check_extent(cloud.points)
-    if opts.normalize:
-        cloud = cloud.normalized()
     if opts.n_points is not None:
         cloud = cloud.resample(opts.n_points, seed=opts.seed)
+    if opts.normalize:
+        cloud = cloud.normalized()
     return cloud
 
 

@@ -11,8 +11,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import sparse
 from scipy.sparse import csgraph
-from scipy.spatial import ConvexHull, cKDTree
-from scipy.spatial import QhullError
+from scipy.spatial import ConvexHull, QhullError, cKDTree
 
 
 def knn(points: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
@@ -60,23 +59,32 @@ def propagate_signs(n: int, edges: np.ndarray, relative: np.ndarray,
     edges = np.asarray(edges, dtype=np.int64).reshape(-1, 2)
     rel = np.where(np.asarray(relative) < 0, -1.0, 1.0)
     w = np.ones(len(edges)) if weights is None else np.asarray(weights, dtype=np.float64) + 1e-9
-    # Store the relative sign in the weight's sign, keeping the smallest |weight| per edge.
-    graph = sparse.coo_matrix((w, (edges[:, 0], edges[:, 1])), shape=(n, n)).tocsr()
-    graph = graph.minimum(graph.T) if weights is not None else graph.maximum(graph.T)
+    # One undirected edge per node pair, keeping its smallest weight (most trusted relation).
+    lo, hi = np.minimum(edges[:, 0], edges[:, 1]), np.maximum(edges[:, 0], edges[:, 1])
+    keep = lo != hi
+    lo, hi, w, rel = lo[keep], hi[keep], w[keep], rel[keep]
+    order = np.lexsort((w, hi, lo))
+    lo, hi, w, rel = lo[order], hi[order], w[order], rel[order]
+    first = np.ones(len(lo), dtype=bool)
+    first[1:] = (lo[1:] != lo[:-1]) | (hi[1:] != hi[:-1])
+    lo, hi, w, rel = lo[first], hi[first], w[first], rel[first]
+    graph = sparse.coo_matrix((w, (lo, hi)), shape=(n, n)).tocsr()
     tree = csgraph.minimum_spanning_tree(graph) if weights is not None else graph
     tree = (tree + tree.T).tocsr()
-    relm = sparse.coo_matrix((rel, (edges[:, 0], edges[:, 1])), shape=(n, n)).tocsr()
-    relm = relm + relm.T  # duplicated edges sum; only the sign matters
+    relm = sparse.coo_matrix((rel, (lo, hi)), shape=(n, n)).tocsr()
+    relm = relm + relm.T
     _, labels = csgraph.connected_components(tree, directed=False)
     sign = np.ones(n)
     for root in np.unique(labels, return_index=True)[1]:
         order, pred = csgraph.breadth_first_order(tree, int(root), directed=False)
+        if len(order) < 2:
+            continue
         children, parents = order[1:], pred[order[1:]]
         r = np.sign(np.asarray(relm[children, parents]).ravel())
         r[r == 0] = 1.0
         # sign[child] = sign[parent] * r, in BFS order (parents come first).
         s = dict.fromkeys(order.tolist(), 1.0)
-        for child, parent, rr in zip(children.tolist(), parents.tolist(), r.tolist()):
+        for child, parent, rr in zip(children.tolist(), parents.tolist(), r.tolist(), strict=True):
             s[child] = s[parent] * rr
         sign[order] = np.fromiter((s[i] for i in order.tolist()), dtype=np.float64, count=len(order))
     return sign, labels
@@ -88,7 +96,13 @@ def _propagate(points: np.ndarray, normals: np.ndarray, k: int) -> tuple[np.ndar
     _, idx = knn(points, k)
     edges = np.stack([np.repeat(np.arange(n), idx.shape[1]), idx.ravel()], axis=1)
     dots = np.einsum("ij,ij->i", normals[edges[:, 0]], normals[edges[:, 1]])
-    return propagate_signs(n, edges, np.sign(dots), weights=1.0 - np.abs(dots))
+    # Prefer edges that lie in both tangent planes: across a thin gap or a sharp fold the edge
+    # runs along a normal, and propagating through it is where signs go wrong.
+    e = points[edges[:, 1]] - points[edges[:, 0]]
+    e /= np.maximum(np.linalg.norm(e, axis=1, keepdims=True), 1e-12)
+    across = np.abs(np.einsum("ij,ij->i", normals[edges[:, 0]], e)) + np.abs(
+        np.einsum("ij,ij->i", normals[edges[:, 1]], e))
+    return propagate_signs(n, edges, np.sign(dots), weights=1.0 - np.abs(dots) + across)
 
 
 def outward_score(points: np.ndarray, normals: np.ndarray) -> np.ndarray:

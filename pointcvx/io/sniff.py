@@ -55,8 +55,18 @@ def _obj_has_faces(path: Path) -> bool:
     return False
 
 
+def _is_iges(text: str) -> bool:
+    """IGES: fixed 80-column records, the section letter (S, G, ...) in column 73."""
+    rows = text.splitlines()[:3]
+    return bool(rows) and all(len(r.rstrip("\r")) >= 73 and r[72] in "SG" for r in rows[:2]) \
+        and rows[0][72] == "S"
+
+
 def _text_kind(text: str, path: Path) -> Detected | None:
-    lines = [ln.strip() for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")]
+    if _is_iges(text):
+        return Detected("iges", "cad")
+    lines = [ln.strip() for ln in text.splitlines()
+             if ln.strip() and not ln.lstrip().startswith(("#", "//"))]
     if not lines:
         return None
     first = lines[0]
@@ -73,13 +83,14 @@ def _text_kind(text: str, path: Path) -> Detected | None:
     heads = {ln.split()[0] for ln in lines[:2000] if ln.split()}
     if "v" in heads and heads <= {"v", "vn", "vt", "vp", "f", "l", "p", "mtllib", "usemtl", "s", "o", "g"}:
         return Detected("obj", "mesh") if _obj_has_faces(path) else Detected("obj-points", "scan")
-    # IGES: fixed 80-column records with the section letter in column 73.
-    if len(lines[0]) >= 73 and lines[0][72] == "S" and re.match(r"^\S?\d+$", lines[0][73:80].strip() or "1"):
-        return Detected("iges", "cad")
     rows = lines[:50]
     if len(rows) >= 2 and re.fullmatch(r"\d+", rows[0]) and all(_NUM_ROW.match(r) for r in rows[1:]):
         return Detected("pts", "scan")
     if all(_NUM_ROW.match(r) for r in rows):
+        return Detected("xyz", "scan")
+    # One header line naming the columns ("X Y Z", "x,y,z,intensity"), then numeric rows.
+    if len(rows) >= 2 and re.fullmatch(r"[A-Za-z_][\w]*(?:[\s,;]+[A-Za-z_][\w]*){2,}", rows[0]) \
+            and all(_NUM_ROW.match(r) for r in rows[1:]):
         return Detected("xyz", "scan")
     return None
 
@@ -107,6 +118,8 @@ def detect(path: str | os.PathLike) -> Detected:
         if inner == b"NGSP":
             return Detected("spz", "splat")
         raise UnknownFormatError(f"{p}: a gzip file that is not an SPZ splat")
+    if re.match(rb"^(?:#[^\n]*\n)*\s*(?:VERSION|FIELDS)\b", head) and b"\nDATA " in head[:8192]:
+        return Detected("pcd", "scan")
     if head.startswith(b"LASF"):
         return Detected("las", "scan")
     if head.startswith(b"\x28\xb5\x2f\xfd") and ext == ".spz":

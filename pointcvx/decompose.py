@@ -1,0 +1,283 @@
+"""Recursive decomposition: split the most concave part in two until every part is under the
+threshold or the hull budget is spent, then merge neighbours whose joint hull stays under it.
+
+Parts are sets of surface points (indices into the cloud). A max-heap keyed by concavity picks
+the part to split; the split clusters the part's points on [features, lambda * xyz] with
+k-means (point clouds) or with Ward linkage constrained to a neighbourhood graph (meshes). Every
+split is kept in a binary tree, so the same feature field can be re-cut at another threshold or
+hull count without recomputing anything.
+"""
+
+from __future__ import annotations
+
+import heapq
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import sparse
+from scipy.sparse import csgraph
+from scipy.spatial import cKDTree
+
+from .errors import InputError
+from .metrics import Hull, convex_hull, part_concavity
+
+log = logging.getLogger(__name__)
+
+SPLIT_METHODS = ("auto", "kmeans", "ward")
+MIN_PART_POINTS = 8
+
+
+@dataclass
+class Node:
+    """One part in the split tree.
+
+    Attributes
+    ----------
+    id : int
+    parent : int or None
+    indices : (m,) int, the cloud points of the part.
+    concavity : float
+    children : (int, int) or None, set once the part has been split.
+    """
+
+    id: int
+    parent: int | None
+    indices: np.ndarray
+    concavity: float
+    depth: int = 0
+    children: tuple[int, int] | None = None
+
+
+@dataclass
+class SplitTree:
+    """All parts ever made, root first; leaves of a cut are the parts of a decomposition."""
+
+    nodes: list[Node] = field(default_factory=list)
+
+    def add(self, parent: int | None, indices: np.ndarray, concavity: float) -> Node:
+        depth = 0 if parent is None else self.nodes[parent].depth + 1
+        node = Node(len(self.nodes), parent, indices, concavity, depth)
+        self.nodes.append(node)
+        return node
+
+    def as_table(self) -> list[dict]:
+        """Plain rows (id, parent, children, size, concavity) for export."""
+        return [
+            {"id": n.id, "parent": n.parent, "children": list(n.children) if n.children else None,
+             "points": int(len(n.indices)), "concavity": round(float(n.concavity), 6)}
+            for n in self.nodes
+        ]
+
+
+def neighbour_graph(points: np.ndarray, k: int = 10, radius_factor: float = 3.0) -> sparse.csr_matrix:
+    """(n, n) symmetric k-NN adjacency of (n, 3) surface points, without edges much longer than
+    the typical spacing (so separate components stay separate)."""
+    k = int(min(k, len(points) - 1))
+    dist, idx = cKDTree(points).query(points, k=k + 1)
+    dist, idx = dist[:, 1:], idx[:, 1:]
+    cap = radius_factor * np.median(dist[:, -1])
+    keep = dist <= cap
+    rows = np.repeat(np.arange(len(points)), k)[keep.ravel()]
+    graph = sparse.coo_matrix((np.ones(len(rows)), (rows, idx.ravel()[keep.ravel()])),
+                              shape=(len(points),) * 2).tocsr()
+    return ((graph + graph.T) > 0).astype(np.float64).tocsr()
+
+
+class Decomposer:
+    """Recursive splitting of one shape, with memoised splits so cuts can be redone cheaply.
+
+    Parameters
+    ----------
+    points, normals : (n, 3) float
+        The oriented cloud in the normalised frame.
+    features : (n, k) float
+        Unit features of the points.
+    solid : pointcvx.solid.Solid
+        The shape's inside (for the concavity's outside test and volume term).
+    split : {"auto", "kmeans", "ward"}
+        "auto" uses Ward with connectivity for mesh inputs and k-means for point clouds.
+    is_mesh : bool
+        Whether the cloud was sampled from a mesh (chooses "auto").
+    blend : float
+        Weight of xyz (scaled to the part's size) against the features in the split.
+    seed : int
+    """
+
+    def __init__(self, points, normals, features, solid, *, split: str = "auto",
+                 is_mesh: bool = False, blend: float = 0.5, max_split_points: int = 3000,
+                 concavity_samples: int = 2000, seed: int = 0):
+        if split not in SPLIT_METHODS:
+            raise InputError(f"unknown split method {split!r}; expected one of {SPLIT_METHODS}")
+        self.points = np.asarray(points, dtype=np.float64)
+        self.normals = np.asarray(normals, dtype=np.float64)
+        self.features = np.asarray(features, dtype=np.float64)
+        self.solid = solid
+        self.method = ("ward" if is_mesh else "kmeans") if split == "auto" else split
+        self.blend = float(blend)
+        self.max_split_points = int(max_split_points)
+        self.concavity_samples = int(concavity_samples)
+        self.seed = int(seed)
+        self.graph = neighbour_graph(self.points)
+        self.tree = SplitTree()
+        self._hulls: dict[int, Hull] = {}
+        self.evaluations = 0
+        root = np.arange(len(self.points))
+        self.tree.add(None, root, self.concavity(root))
+
+    # ------------------------------------------------------------------ measures
+    def concavity(self, indices: np.ndarray) -> float:
+        """Concavity of the part made of the points ``indices`` (see metrics.part_concavity)."""
+        self.evaluations += 1
+        pts = self.points[indices]
+        if len(pts) < 4:
+            return 0.0
+        return float(part_concavity(pts, self.solid, n_hull_samples=self.concavity_samples,
+                                    n_volume_samples=self.concavity_samples, seed=self.seed))
+
+    def hull(self, node_id: int) -> Hull:
+        if node_id not in self._hulls:
+            self._hulls[node_id] = convex_hull(self.points[self.tree.nodes[node_id].indices])
+        return self._hulls[node_id]
+
+    # ------------------------------------------------------------------ splitting
+    def _components(self, indices: np.ndarray) -> np.ndarray:
+        sub = self.graph[indices][:, indices]
+        return csgraph.connected_components(sub, directed=False)[1]
+
+    def _embedding(self, indices: np.ndarray) -> np.ndarray:
+        xyz = self.points[indices]
+        xyz = (xyz - xyz.mean(axis=0)) / max(float(np.linalg.norm(xyz.std(axis=0))), 1e-9)
+        return np.concatenate([self.features[indices], self.blend * xyz], axis=1)
+
+    def _two_way(self, indices: np.ndarray, seed: int) -> np.ndarray:
+        """(m,) bool: which side of the split each point of the part goes to."""
+        labels = self._components(indices)
+        if labels.max() > 0:
+            # Disconnected part: the largest component against the rest, no clustering needed.
+            sizes = np.bincount(labels)
+            return labels != np.argmax(sizes)
+        x = self._embedding(indices)
+        rng = np.random.default_rng(seed)
+        if len(indices) > self.max_split_points:
+            sel = np.sort(rng.choice(len(indices), self.max_split_points, replace=False))
+        else:
+            sel = np.arange(len(indices))
+        if self.method == "kmeans":
+            from sklearn.cluster import KMeans
+
+            km = KMeans(n_clusters=2, n_init=4, random_state=seed).fit(x[sel])
+            side = km.predict(x) == 1
+        else:
+            from sklearn.cluster import AgglomerativeClustering
+
+            conn = self.graph[indices[sel]][:, indices[sel]]
+            n_comp, comp = csgraph.connected_components(conn, directed=False)
+            if n_comp > 1:  # the subsample broke the graph: link pieces by nearest points
+                conn = _link_components(self.points[indices[sel]], conn, comp)
+            ward = AgglomerativeClustering(n_clusters=2, linkage="ward", connectivity=conn)
+            sub = ward.fit_predict(x[sel]) == 1
+            if len(sel) == len(indices):
+                side = sub
+            else:  # every point follows its nearest subsampled neighbour
+                _, nn = cKDTree(self.points[indices[sel]]).query(self.points[indices])
+                side = sub[nn]
+        return side
+
+    def split(self, node_id: int) -> tuple[int, int] | None:
+        """Split a part in two (memoised); None when it cannot be split."""
+        node = self.tree.nodes[node_id]
+        if node.children is not None:
+            return node.children
+        if len(node.indices) < 2 * MIN_PART_POINTS:
+            return None
+        side = self._two_way(node.indices, self.seed + node_id)
+        if side.sum() < MIN_PART_POINTS or (~side).sum() < MIN_PART_POINTS:
+            # Degenerate clustering: fall back to the median plane across the longest axis.
+            pts = self.points[node.indices]
+            axis = np.argmax(np.ptp(pts, axis=0))
+            side = pts[:, axis] > np.median(pts[:, axis])
+            if side.sum() < MIN_PART_POINTS or (~side).sum() < MIN_PART_POINTS:
+                return None
+        a = self.tree.add(node_id, node.indices[~side], self.concavity(node.indices[~side]))
+        b = self.tree.add(node_id, node.indices[side], self.concavity(node.indices[side]))
+        node.children = (a.id, b.id)
+        return node.children
+
+    # ------------------------------------------------------------------ cutting
+    def cut(self, threshold: float, max_hulls: int,
+            progress: Callable[[int, float], None] | None = None) -> list[int]:
+        """Leaves (node ids) of the decomposition at ``threshold`` / ``max_hulls``.
+
+        Pops the most concave part and splits it until every part is at most ``threshold`` or
+        ``max_hulls`` parts exist. ``progress(n_parts, worst_concavity)`` after each split.
+        """
+        if max_hulls < 1:
+            raise InputError(f"max_hulls must be at least 1, got {max_hulls}")
+        root = self.tree.nodes[0]
+        heap = [(-root.concavity, root.id)]
+        done: list[int] = []
+        while heap and len(heap) + len(done) < max_hulls:
+            neg, node_id = heapq.heappop(heap)
+            if -neg <= threshold:
+                heapq.heappush(heap, (neg, node_id))
+                break
+            children = self.split(node_id)
+            if children is None:
+                done.append(node_id)
+                continue
+            for c in children:
+                heapq.heappush(heap, (-self.tree.nodes[c].concavity, c))
+            if progress is not None:
+                progress(len(heap) + len(done), -heap[0][0] if heap else 0.0)
+        return sorted(done + [node_id for _, node_id in heap])
+
+    def merge(self, leaves: list[int], threshold: float) -> list[np.ndarray]:
+        """Greedily join neighbouring parts while the joint part stays under ``threshold``.
+
+        Returns the final parts as index arrays. Neighbours: parts linked by an edge of the
+        surface neighbour graph. The pair with the lowest joint concavity is merged first.
+        """
+        parts = {i: self.tree.nodes[leaf].indices for i, leaf in enumerate(leaves)}
+        conc = {i: self.tree.nodes[leaf].concavity for i, leaf in enumerate(leaves)}
+        label = np.empty(len(self.points), dtype=np.int64)
+        for i, idx in parts.items():
+            label[idx] = i
+        cache: dict[tuple[int, int], float] = {}
+        next_id = len(parts)
+        while len(parts) > 1:
+            coo = self.graph.tocoo()
+            a, b = label[coo.row], label[coo.col]
+            pairs = {(int(x), int(y)) for x, y in zip(a[a < b], b[a < b], strict=True)}
+            best, best_pair = np.inf, None
+            for pair in sorted(pairs):
+                if pair not in cache:
+                    cache[pair] = self.concavity(np.concatenate([parts[pair[0]], parts[pair[1]]]))
+                if cache[pair] < best:
+                    best, best_pair = cache[pair], pair
+            if best_pair is None or best > threshold:
+                break
+            i, j = best_pair
+            merged = np.sort(np.concatenate([parts.pop(i), parts.pop(j)]))
+            conc.pop(i), conc.pop(j)
+            parts[next_id], conc[next_id] = merged, best
+            label[merged] = next_id
+            next_id += 1
+        self.merged_concavity = conc
+        return [parts[k] for k in sorted(parts)], [conc[k] for k in sorted(parts)]
+
+
+def _link_components(points: np.ndarray, conn: sparse.csr_matrix, comp: np.ndarray) -> sparse.csr_matrix:
+    """Add one edge from each component to its nearest point in another, until connected."""
+    conn = conn.tolil()
+    n_comp = comp.max() + 1
+    while n_comp > 1:
+        first = comp == 0
+        tree = cKDTree(points[~first])
+        d, j = tree.query(points[first])
+        i = np.flatnonzero(first)[np.argmin(d)]
+        j = np.flatnonzero(~first)[j[np.argmin(d)]]
+        conn[i, j] = conn[j, i] = 1.0
+        n_comp, comp = csgraph.connected_components(conn.tocsr(), directed=False)
+    return conn.tocsr()

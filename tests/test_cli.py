@@ -1,0 +1,165 @@
+"""The command line: reports, outputs, and one-line errors with non-zero exits on bad input."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from conftest import DATA, ROOT
+from pointcvx.cli import EXIT_INPUT, EXIT_USAGE, main
+
+MUG = DATA / "dev/objects/mug.obj"
+
+
+def run_cli(*args: str, env: dict | None = None) -> subprocess.CompletedProcess:
+    """Run the real console entry point in a subprocess."""
+    cmd = [sys.executable, "-m", "pointcvx", *args]
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=300, env=env, cwd=ROOT)
+
+
+def test_info_reports_detection(capsys):
+    assert main(["info", str(MUG), "--json", "-n", "2000"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["modality"] == "mesh" and report["format"] == "obj"
+    assert report["points"] == 2000 and report["faces"] == 864
+    assert "ray parity" in report["normals"]
+    np.testing.assert_allclose(report["bbox_min"], [-0.041, -0.041, 0.0], atol=1e-3)
+
+
+def test_info_writes_cloud_in_input_units(tmp_path, capsys):
+    from plyfile import PlyData
+
+    out = tmp_path / "mug_cloud.ply"
+    assert main(["info", str(MUG), "-o", str(out), "-n", "1500", "-q"]) == 0
+    assert capsys.readouterr().out == ""
+    v = PlyData.read(str(out))["vertex"]
+    pts = np.c_[v["x"], v["y"], v["z"]]
+    assert len(pts) == 1500 and pts[:, 2].min() >= -1e-6 and pts[:, 2].max() <= 0.1 + 1e-6
+    # Existing output is not replaced without --overwrite; the file stays intact.
+    before = out.read_bytes()
+    assert main(["info", str(MUG), "-o", str(out)]) == EXIT_INPUT
+    assert "exists" in capsys.readouterr().err and out.read_bytes() == before
+    assert main(["info", str(MUG), "-o", str(out), "--overwrite", "--normalized", "-q"]) == 0
+    v = PlyData.read(str(out))["vertex"]
+    assert np.isclose(max(np.ptp(v[c]) for c in "xyz"), 2.0, atol=1e-4)
+
+
+def test_refuses_to_overwrite_its_input(tmp_path, capsys):
+    src = tmp_path / "in.ply"
+    src.write_bytes((ROOT / "io" / "mug_scan.ply").read_bytes())
+    before = src.read_bytes()
+    assert main(["info", str(src), "-o", str(src), "--overwrite"]) == EXIT_INPUT
+    assert "input" in capsys.readouterr().err and src.read_bytes() == before
+
+
+def _bad_inputs(tmp: str) -> dict[str, tuple[str, str]]:
+    """name -> (path, expected message fragment), written into ``tmp``."""
+    from pathlib import Path
+
+    tmp = Path(tmp)
+    cases = {}
+    cases["missing"] = (str(tmp / "nope.ply"), "no such file")
+    (tmp / "empty.obj").write_bytes(b"")
+    cases["empty"] = (str(tmp / "empty.obj"), "empty")
+    data = (ROOT / "io" / "mug_splat.ply").read_bytes()
+    (tmp / "truncated.ply").write_bytes(data[: len(data) // 2])
+    cases["truncated ply"] = (str(tmp / "truncated.ply"), "truncated or corrupted PLY")
+    mesh_ply = (DATA / "dev/objects/ant.ply").read_bytes()
+    (tmp / "truncated_mesh.ply").write_bytes(mesh_ply[: len(mesh_ply) * 2 // 3])
+    cases["truncated mesh ply"] = (str(tmp / "truncated_mesh.ply"), "PLY")
+    (tmp / "corrupt.ply").write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 10\n")
+    cases["corrupted ply"] = (str(tmp / "corrupt.ply"), "header never ends")
+    (tmp / "novert.ply").write_bytes(
+        b"ply\nformat ascii 1.0\nelement vertex 0\nproperty float x\nproperty float y\n"
+        b"property float z\nend_header\n")
+    cases["no vertices"] = (str(tmp / "novert.ply"), "no vertices")
+    (tmp / "nan.xyz").write_text("0 0 0\n1 0 0\n0 1 0\nnan 0 1\n0 0 1\n")
+    cases["nan"] = (str(tmp / "nan.xyz"), "NaN")
+    (tmp / "inf.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 inf 0\nv 0 0 1\nf 1 2 3\nf 1 3 4\n")
+    cases["inf"] = (str(tmp / "inf.obj"), "infinite")
+    (tmp / "same.xyz").write_text("1 2 3\n" * 20)
+    cases["identical"] = (str(tmp / "same.xyz"), "identical")
+    (tmp / "line.xyz").write_text("".join(f"{t} {2 * t} {3 * t}\n" for t in range(20)))
+    cases["collinear"] = (str(tmp / "line.xyz"), "collinear")
+    (tmp / "noise.bin").write_bytes(np.random.default_rng(0).bytes(5000))
+    cases["unknown"] = (str(tmp / "noise.bin"), "unknown format")
+    (tmp / "flat.obj").write_text("v 0 0 0\nv 1 0 0\nv 2 0 0\nv 3 0 0\nf 1 2 3\nf 2 3 4\n")
+    cases["degenerate faces"] = (str(tmp / "flat.obj"), "degenerate")
+    return cases
+
+
+CASES = ["missing", "empty", "truncated ply", "truncated mesh ply", "corrupted ply", "no vertices",
+         "nan", "inf", "identical", "collinear", "unknown", "degenerate faces"]
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_bad_input_gives_one_line_error(tmp_path, capsys, case):
+    path, fragment = _bad_inputs(str(tmp_path))[case]
+    assert main(["info", path]) == EXIT_INPUT
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("pointcvx: error:") and "\n" not in err
+    assert fragment.lower() in err.lower()
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_bad_input_api_raises_typed_error(tmp_path, case):
+    import pointcvx
+
+    path, fragment = _bad_inputs(str(tmp_path))[case]
+    with pytest.raises(pointcvx.PointcvxError) as info:
+        pointcvx.load(path)
+    assert isinstance(info.value, pointcvx.InputError)
+    assert fragment.lower() in str(info.value).lower()
+
+
+def test_bad_inputs_in_a_real_process_never_trace_back(tmp_path):
+    cases = _bad_inputs(str(tmp_path))
+    for name in ("truncated ply", "unknown", "nan", "collinear"):
+        res = run_cli("info", cases[name][0])
+        assert res.returncode == EXIT_INPUT, (name, res.stderr)
+        assert "Traceback" not in res.stderr and len(res.stderr.strip().splitlines()) == 1
+
+
+def test_step_without_cad_extra(tmp_path):
+    """With gmsh unavailable, a STEP file names the extra to install and exits 1."""
+    code = (
+        "import sys; sys.modules['gmsh'] = None\n"
+        "from pointcvx.cli import main\n"
+        f"sys.exit(main(['info', {str(ROOT / 'io' / 'bracket.step')!r}]))\n"
+    )
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert res.returncode == EXIT_INPUT
+    assert "pip install 'pointcvx[cad]'" in res.stderr and "Traceback" not in res.stderr
+
+
+def test_usage_errors_and_help():
+    res = run_cli("info")
+    assert res.returncode == EXIT_USAGE and "Traceback" not in res.stderr
+    res = run_cli("info", str(MUG), "--points", "many")
+    assert res.returncode == EXIT_USAGE
+    res = run_cli("info", str(MUG), "--min-opacity", "2")
+    assert res.returncode == EXIT_INPUT and "min_opacity" in res.stderr
+    res = run_cli("info", "--help")
+    assert res.returncode == 0
+    for flag in ("--output", "--points", "--seed", "--min-opacity", "--floater-ratio",
+                 "--samples-per-gaussian", "--voxel-size", "--outlier-std", "--cad-mesh-size",
+                 "--overwrite", "--json", "--quiet"):
+        assert flag in res.stdout
+    assert run_cli("--version").stdout.startswith("pointcvx ")
+
+
+def test_console_script_runs_on_every_bundled_sample():
+    exe = os.path.join(os.path.dirname(sys.executable), "pointcvx")
+    for sample in sorted((ROOT / "io").iterdir()):
+        if sample.suffix == ".md":
+            continue
+        res = subprocess.run([exe, "info", str(sample), "--json"], capture_output=True, text=True,
+                             timeout=300)
+        assert res.returncode == 0, (sample, res.stderr)
+        report = json.loads(res.stdout)
+        assert report["points"] > 1000

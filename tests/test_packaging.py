@@ -1,0 +1,62 @@
+"""Packaging: README's two commands, CI wiring, and a real install of the package into a fresh
+virtual environment (dependencies borrowed from the running environment, so no network)."""
+
+from __future__ import annotations
+
+import json
+import re
+import site
+import subprocess
+import sys
+import venv
+
+from conftest import ROOT
+
+
+def _readme_commands() -> list[str]:
+    text = (ROOT / "README.md").read_text()
+    blocks = re.findall(r"<!-- (\w[\w-]*) -->\s*```(?:bash|sh)?\n(.*?)```", text, re.S)
+    return {name: body.strip() for name, body in blocks}
+
+
+def test_readme_gives_exactly_two_setup_commands():
+    cmds = _readme_commands()
+    assert set(cmds) == {"main-command", "test-command"}
+    for body in cmds.values():
+        assert len(body.splitlines()) == 1
+        assert "pip install torch==2.13.0" in body
+    assert "pointcvx " in cmds["main-command"] and "io/" in cmds["main-command"]
+    assert "pytest" in cmds["test-command"]
+
+
+def test_ci_runs_the_readme_test_command():
+    ci = (ROOT / ".ci" / "run").read_text()
+    assert "test-command" in ci and "libusb-1.0-0" in ci
+    assert "ruff check" in ci
+
+
+def test_fresh_venv_install_runs_the_cli(tmp_path):
+    env_dir = tmp_path / "venv"
+    venv.EnvBuilder(with_pip=True).create(env_dir)
+    py = env_dir / "bin" / "python"
+    child_site = subprocess.run([py, "-c", "import site; print(site.getsitepackages()[0])"],
+                                capture_output=True, text=True, check=True).stdout.strip()
+    # Dependencies come from this environment; pointcvx itself is installed for real.
+    parents = [p for p in site.getsitepackages() if p != child_site]
+    with open(f"{child_site}/zz_parent_deps.pth", "w") as f:
+        f.write("\n".join(parents) + "\n")
+    res = subprocess.run(
+        # Build isolation fetches the build backend (setuptools) from the package index.
+        [py, "-m", "pip", "install", "--no-deps", "-q", str(ROOT)],
+        capture_output=True, text=True, timeout=600,
+    )
+    assert res.returncode == 0, res.stderr[-2000:]
+    exe = env_dir / "bin" / "pointcvx"
+    where = subprocess.run([py, "-c", "import pointcvx; print(pointcvx.__file__)"], cwd=tmp_path,
+                           capture_output=True, text=True, check=True).stdout
+    assert str(env_dir) in where  # the installed copy, not the source tree
+    res = subprocess.run([exe, "info", str(ROOT / "io" / "mug.obj"), "--json", "-n", "1000"],
+                         cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    assert json.loads(res.stdout)["points"] == 1000
+    assert sys.executable != str(py)
