@@ -1,7 +1,9 @@
 """pointcvx: approximate convex decomposition of splats, scans, meshes and CAD parts.
 
 The pipeline, one module each: load (:mod:`pointcvx.io`) -> oriented cloud
-(:mod:`pointcvx.cloud`) -> features -> decompose -> hulls -> export.
+(:mod:`pointcvx.cloud`) -> solid (:mod:`pointcvx.solid`, :mod:`pointcvx.watertight`) -> features
+(:mod:`pointcvx.features`) -> recursive decomposition (:mod:`pointcvx.recursive`) -> hulls and
+export (:mod:`pointcvx.result`); :func:`decompose` (:mod:`pointcvx.pipeline`) runs it all.
 """
 
 from __future__ import annotations
@@ -11,12 +13,17 @@ import logging
 from .cloud import Normalization, OrientedCloud
 from .errors import InputError, MissingExtraError, OutputError, PointcvxError, UnknownFormatError
 from .io import LoadOptions, detect, load
+from .pipeline import decompose
+from .result import ConvexHull, Decomposition
 
 __version__ = "0.1.0"
 
 logging.getLogger(__name__).addHandler(logging.NullHandler())
 
 __all__ = [
+    "ConvexHull",
+    "Decomposition",
+    "decompose",
     "InputError",
     "LoadOptions",
     "MissingExtraError",

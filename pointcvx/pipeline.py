@@ -11,6 +11,7 @@ from collections.abc import Callable
 from typing import Any
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from .cloud import OrientedCloud
 from .errors import InputError, PointcvxError
@@ -77,6 +78,7 @@ def decompose(
     features: str = "optimize",
     merge: bool = True,
     split: str = "auto",
+    blend: float = 1.0,
     n_points: int = 20000,
     seed: int = 0,
     progress: Progress | None = None,
@@ -99,6 +101,8 @@ def decompose(
         After splitting, join neighbouring parts whose joint hull stays under ``threshold``.
     split : {"auto", "kmeans", "ward"}
         How a part is cut in two ("auto": Ward with connectivity on meshes, k-means on clouds).
+    blend : float
+        Weight of position (scaled to the part's size) against features when cutting a part.
     n_points : int
         Surface points used (meshes are sampled, clouds capped; seeded).
     seed : int
@@ -116,7 +120,7 @@ def decompose(
         raise InputError(f"threshold must be positive, got {threshold}")
     if max_hulls < 1:
         raise InputError(f"max_hulls must be at least 1, got {max_hulls}")
-    from .decompose import SPLIT_METHODS, Decomposer
+    from .recursive import SPLIT_METHODS, Decomposer
     from .watertight import solid_for
 
     if split not in SPLIT_METHODS:
@@ -132,11 +136,13 @@ def decompose(
     _, feats = compute_features(cloud, solid, method=features, seed=seed, progress=progress)
     timings["features"] = time.perf_counter() - t
     t = time.perf_counter()
-    decomposer = Decomposer(cloud.points, cloud.normals, feats, solid, split=split,
-                            is_mesh=cloud.mesh is not None, seed=seed)
+    with threadpool_limits(1):
+        decomposer = Decomposer(cloud.points, cloud.normals, feats, solid, split=split,
+                                is_mesh=cloud.mesh is not None, blend=blend, seed=seed)
     timings["tree"] = time.perf_counter() - t
     params = {"threshold": float(threshold), "max_hulls": int(max_hulls), "features": features,
-              "merge": bool(merge), "split": decomposer.method, "n_points": int(n_points),
+              "merge": bool(merge), "split": decomposer.method, "blend": float(blend),
+              "n_points": int(n_points),
               "seed": int(seed), **load_options}
     timings["_start"] = t0
     return cut_decomposition(decomposer, cloud, feats, params, timings, progress=progress)
@@ -152,12 +158,13 @@ def cut_decomposition(decomposer, cloud: OrientedCloud, feats: np.ndarray, param
     t = time.perf_counter()
     report = None if progress is None else (
         lambda n, worst: progress("split", n, params["max_hulls"]))
-    leaves = decomposer.cut(params["threshold"], params["max_hulls"], progress=report)
-    timings["split"] = time.perf_counter() - t
-    t = time.perf_counter()
-    if params["merge"]:
-        parts, concavity = decomposer.merge(leaves, params["threshold"])
-    else:
+    with threadpool_limits(1):  # many small BLAS calls: threads only add overhead
+        leaves = decomposer.cut(params["threshold"], params["max_hulls"], progress=report)
+        timings["split"] = time.perf_counter() - t
+        t = time.perf_counter()
+        if params["merge"]:
+            parts, concavity = decomposer.merge(leaves, params["threshold"])
+    if not params["merge"]:
         parts = [decomposer.tree.nodes[i].indices for i in leaves]
         concavity = [decomposer.tree.nodes[i].concavity for i in leaves]
     timings["merge"] = time.perf_counter() - t

@@ -55,11 +55,10 @@ def inward_directions(normals: np.ndarray, rng: np.random.Generator, min_cos: fl
     d = rng.normal(size=normals.shape)
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     dot = np.einsum("ij,ij->i", d, normals)
-    d[dot > 0] -= 2 * dot[dot > 0, None] * normals[dot > 0]  # reflect into the inward side
-    dot = np.einsum("ij,ij->i", d, normals)
-    shallow = dot > -min_cos
-    d[shallow] -= (dot[shallow] + min_cos)[:, None] * normals[shallow]
-    return d / np.linalg.norm(d, axis=1, keepdims=True)
+    tangent = d - dot[:, None] * normals
+    tangent /= np.maximum(np.linalg.norm(tangent, axis=1, keepdims=True), 1e-12)
+    cos = np.maximum(np.abs(dot), min_cos)  # inward, and never closer to the plane than min_cos
+    return np.sqrt(1.0 - cos**2)[:, None] * tangent - cos[:, None] * normals
 
 
 def positives(solid: Solid, points: np.ndarray, normals: np.ndarray, rng: np.random.Generator,
@@ -86,18 +85,25 @@ def nonconvex_mask(solid: Solid, anchors: np.ndarray, normals: np.ndarray, cands
     by its ray like the others, since a segment along a flat face stays in the closed solid.
     """
     a, c = cands.shape[:2]
-    origins = np.repeat(anchors - offset * normals, c, axis=0)
+    anchor = np.repeat(anchors, c, axis=0)
+    normal = np.repeat(normals, c, axis=0)
     target = cands.reshape(-1, 3)
-    d = target - origins
+    d = target - anchor
     length = np.linalg.norm(d, axis=1)
-    u = d / np.maximum(length, 1e-12)[:, None]
-    facing = np.einsum("ij,ij->i", u, np.repeat(normals, c, axis=0)) < tangent_tol
-    out = ~facing
-    idx = np.flatnonzero(facing & (length > 4 * offset))
+    near = length <= 4 * offset  # the anchor itself, or a point too close to tell
+    cos = np.einsum("ij,ij->i", d, normal) / np.maximum(length, 1e-12)
+    facing = cos < tangent_tol
+    out = ~facing & ~near
+    idx = np.flatnonzero(facing & ~near)
     if len(idx):
-        t = solid.first_hit(origins[idx], u[idx])
-        # The ray must reach the candidate (which sits on the surface, near the far wall).
-        out[idx] = t < length[idx] - 4 * offset
+        # Shoot from just below the anchor's surface towards the candidate.
+        origins = anchor[idx] - offset * normal[idx]
+        dv = target[idx] - origins
+        dist = np.linalg.norm(dv, axis=1)
+        t = solid.first_hit(origins, dv / dist[:, None])
+        # The ray must reach the candidate, which sits on the surface: hits just before it (a
+        # grazing ray meeting the candidate's own face) do not count.
+        out[idx] = t < dist * 0.99 - 4 * offset
     return out.reshape(a, c)
 
 

@@ -1,0 +1,171 @@
+"""The method end to end: decompositions of analytic shapes with known answers, the result type,
+re-cutting, determinism, every modality, and the decompose/evaluate commands."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import trimesh
+from shapes import l_block, torus, two_boxes, u_block
+
+import pointcvx
+from conftest import DATA, ROOT
+from pointcvx.cli import EXIT_INPUT, main
+from pointcvx.metrics import evaluate, hull_contains
+
+FAST = dict(n_points=6000, seed=0)
+
+
+@pytest.fixture(scope="module")
+def l_result():
+    return pointcvx.decompose(l_block(), threshold=0.1, **FAST)
+
+
+def _check_known(result, mesh, n_expected, threshold=0.1):
+    assert len(result) == n_expected, result.summary()
+    assert result.max_concavity <= threshold
+    ev = evaluate(mesh, [h.vertices for h in result.hulls], n_samples=8000)
+    assert ev["concavity"] <= threshold and ev["coverage"] > 0.99 and ev["iou"] > 0.9, ev
+    # The hulls tile the solid: their volumes add up to it (no big overlaps, nothing missing).
+    total = sum(h.volume for h in result.hulls)
+    assert abs(total - mesh.volume) / mesh.volume < 0.08
+
+
+def test_l_block_splits_into_its_two_boxes(l_result):
+    _check_known(l_result, l_block(), 2)
+    vols = sorted(h.volume for h in l_result.hulls)
+    np.testing.assert_allclose(vols, [1.0, 2.0], rtol=0.1)
+
+
+def test_u_block_splits_into_three(tmp_path):
+    _check_known(pointcvx.decompose(u_block(), threshold=0.1, **FAST), u_block(), 3)
+
+
+def test_two_separated_boxes_give_two_box_hulls():
+    result = pointcvx.decompose(two_boxes(), threshold=0.1, **FAST)
+    _check_known(result, two_boxes(), 2)
+    centres = sorted(h.vertices.mean(axis=0)[0] for h in result.hulls)
+    np.testing.assert_allclose(centres, [0.0, 2.0], atol=0.05)
+
+
+def test_torus_needs_several_hulls_and_gets_under_threshold():
+    result = pointcvx.decompose(torus(), threshold=0.1, **FAST)
+    assert 4 <= len(result) <= 16 and result.max_concavity <= 0.1
+    ev = evaluate(torus(), [h.vertices for h in result.hulls], n_samples=8000)
+    assert ev["concavity"] <= 0.1 and ev["coverage"] > 0.99
+
+
+def test_every_point_is_inside_its_hull(l_result):
+    pts = l_result.cloud.normalization.inverse(l_result.cloud.points)
+    for i, h in enumerate(l_result.hulls):
+        mine = pts[l_result.labels == i]
+        assert len(mine) == h.points
+        hull = pointcvx.metrics.convex_hull(h.vertices)
+        assert hull_contains(hull, mine, tol=1e-7).all()
+
+
+def test_same_seed_same_result_other_seed_still_valid():
+    a = pointcvx.decompose(l_block(), **FAST)
+    b = pointcvx.decompose(l_block(), **FAST)
+    np.testing.assert_array_equal(a.labels, b.labels)
+    for ha, hb in zip(a.hulls, b.hulls, strict=True):
+        np.testing.assert_array_equal(ha.vertices, hb.vertices)
+    c = pointcvx.decompose(l_block(), n_points=6000, seed=7)
+    assert len(c) == 2
+
+
+def test_recut_reuses_the_tree(l_result):
+    coarse = l_result.recut(threshold=0.9)
+    assert len(coarse) == 1  # one hull covers everything at a loose threshold
+    capped = pointcvx.decompose(u_block(), threshold=0.02, max_hulls=2, **FAST)
+    assert len(capped) <= 2
+    finer = capped.recut(max_hulls=3, threshold=0.1)
+    assert len(finer) == 3 and finer.max_concavity <= 0.1
+    assert finer.params["threshold"] == 0.1 and capped.params["threshold"] == 0.02
+    # No merge: the leaves of the tree are the hulls.
+    raw = l_result.recut(merge=False)
+    assert len(raw) >= len(l_result)
+    assert [n["id"] for n in l_result.tree][:1] == [0]
+
+
+def test_result_exports_and_conversions(l_result, tmp_path):
+    out = tmp_path / "l.obj"
+    assert l_result.export(out) == [out]
+    text = out.read_text()
+    assert text.count("\no hull_") == len(l_result)
+    loaded = pointcvx.metrics.load_hulls(out)
+    assert len(loaded) == len(l_result)
+    with pytest.raises(pointcvx.OutputError):
+        l_result.export(out)
+    files = l_result.export(tmp_path / "parts", per_hull=True)
+    assert [f.name for f in files] == [f"hull_{i:03d}.obj" for i in range(len(l_result))]
+    stl = l_result.export(tmp_path / "stl_parts.stl")
+    assert all(trimesh.load(f).is_watertight for f in stl)
+    scene = l_result.to_trimesh()
+    assert len(scene.geometry) == len(l_result)
+    meshes = l_result.to_open3d()
+    assert len(meshes) == len(l_result) and len(meshes[0].triangles) > 0
+    s = l_result.summary()
+    assert s["hulls"] == len(l_result) and s["seconds"] > 0
+    # Hulls are in the input's units (the L spans 0..2).
+    allv = np.concatenate([h.vertices for h in l_result.hulls])
+    np.testing.assert_allclose(allv.min(axis=0), [0, 0, 0], atol=0.02)
+    np.testing.assert_allclose(allv.max(axis=0), [2, 1, 2], atol=0.02)
+
+
+@pytest.mark.parametrize("sample", ["mug_splat.ply", "mug_scan.ply", "bracket.step"])
+def test_bundled_samples_of_every_modality_decompose(sample):
+    result = pointcvx.decompose(ROOT / "io" / sample, threshold=0.15, max_hulls=24, **FAST)
+    assert 2 <= len(result) <= 24
+    assert np.isfinite(result.concavity).all()
+
+
+@pytest.mark.parametrize("rel", ["splats/donut.ply", "splats/guitar.compressed.ply"])
+def test_real_splats_decompose(rel):
+    result = pointcvx.decompose(DATA / "dev" / rel, threshold=0.15, max_hulls=16, **FAST)
+    assert 1 <= len(result) <= 16 and result.cloud.modality == "splat"
+
+
+def test_api_accepts_arrays_open3d_and_clouds():
+    mesh = l_block()
+    pts, face = trimesh.sample.sample_surface(mesh, 6000, seed=1)
+    r1 = pointcvx.decompose((pts, mesh.face_normals[face]), **FAST)
+    assert len(r1) >= 2
+    r2 = pointcvx.decompose(pts, **FAST)  # normals estimated
+    assert len(r2) >= 2
+    with pytest.raises(pointcvx.InputError):
+        pointcvx.decompose(np.zeros((10, 3)))
+    with pytest.raises(pointcvx.InputError):
+        pointcvx.decompose(mesh, threshold=-1)
+    with pytest.raises(pointcvx.InputError):
+        pointcvx.decompose({"not": "a shape"})
+
+
+def test_cli_decompose_and_evaluate(tmp_path, capsys):
+    mesh_path = tmp_path / "l.obj"
+    l_block().export(mesh_path)
+    out = tmp_path / "hulls.obj"
+    assert main(["decompose", str(mesh_path), "-o", str(out), "-n", "6000", "--json", "-q"]) == 0
+    assert capsys.readouterr().out == ""
+    assert main(["decompose", str(mesh_path), "-o", str(out), "-n", "6000", "--json"]) == EXIT_INPUT
+    assert "exists" in capsys.readouterr().err
+    assert main(["decompose", str(mesh_path), "-o", str(out), "-n", "6000", "--json",
+                 "--overwrite"]) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert summary["hulls"] == 2 and summary["max_concavity"] <= 0.1
+    assert main(["evaluate", str(mesh_path), str(out), "--json", "--samples", "5000"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["hulls"] == 2 and report["concavity"] <= 0.1 and report["coverage"] > 0.99
+
+
+def test_cli_decompose_bad_input(tmp_path, capsys):
+    bad = tmp_path / "bad.ply"
+    bad.write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 5\n")
+    assert main(["decompose", str(bad), "-o", str(tmp_path / "o.obj")]) == EXIT_INPUT
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("pointcvx: error:") and "\n" not in err
+    assert main(["decompose", str(tmp_path / "missing.obj")]) == EXIT_INPUT
+    assert "no such file" in capsys.readouterr().err
+    assert not (tmp_path / "o.obj").exists()
