@@ -120,7 +120,7 @@ def build_parser() -> argparse.ArgumentParser:
     dec.add_argument("--features", choices=["optimize", "model"], default="optimize",
                      help="optimise a feature field for this shape, or use the bundled model")
     dec.add_argument("--split", choices=["auto", "kmeans", "ward"], default="auto",
-                     help="how a part is cut in two (auto: ward on meshes, k-means on clouds)")
+                     help="how a part is cut in two (auto: k-means on features + xyz)")
     dec.add_argument("--no-merge", action="store_true", help="skip the merge pass")
     dec.add_argument("--per-hull", action="store_true", help="write one file per hull")
     dec.add_argument("--overwrite", action="store_true", help="replace existing outputs")

@@ -2,10 +2,12 @@
 threshold or the hull budget is spent, then merge neighbours whose joint hull stays under it.
 
 Parts are sets of surface points (indices into the cloud). A max-heap keyed by concavity picks
-the part to split; the split clusters the part's points on [features, lambda * xyz] with
-k-means (point clouds) or with Ward linkage constrained to a neighbourhood graph (meshes). Every
-split is kept in a binary tree, so the same feature field can be re-cut at another threshold or
-hull count without recomputing anything.
+the part to split. A split clusters the part's points on [features, lambda * xyz] (k-means, or
+Ward linkage constrained to the surface neighbour graph) for a few values of lambda, adds the
+median plane across the part's longest axis, and keeps the proposal whose more concave child is
+least concave. Disconnected parts are first split into components. Every split is kept in a
+binary tree, so the same feature field can be re-cut at another threshold or hull count without
+recomputing anything.
 """
 
 from __future__ import annotations
@@ -97,25 +99,34 @@ class Decomposer:
     solid : pointcvx.solid.Solid
         The shape's inside (for the concavity's outside test and volume term).
     split : {"auto", "kmeans", "ward"}
-        "auto" uses Ward with connectivity for mesh inputs and k-means for point clouds.
+        Clustering used to cut a part: k-means on [features, blend * xyz], or Ward linkage
+        constrained to the surface neighbour graph ("auto": k-means).
     is_mesh : bool
-        Whether the cloud was sampled from a mesh (chooses "auto").
+        Whether the cloud was sampled from a mesh (recorded; both modalities split alike).
     blend : float
         Weight of xyz (scaled to the part's size) against the features in the split.
+    candidates : tuple of float
+        Multipliers of ``blend`` tried at every split, plus the median plane across the longest
+        axis; the proposal whose more concave child is least concave is kept.
     seed : int
     """
 
     def __init__(self, points, normals, features, solid, *, split: str = "auto",
-                 is_mesh: bool = False, blend: float = 0.5, max_split_points: int = 3000,
-                 concavity_samples: int = 2000, seed: int = 0):
+                 is_mesh: bool = False, blend: float = 1.0, candidates: tuple = (0.5, 1.0, 2.0),
+                 max_split_points: int = 3000, concavity_samples: int = 2000, seed: int = 0):
         if split not in SPLIT_METHODS:
             raise InputError(f"unknown split method {split!r}; expected one of {SPLIT_METHODS}")
         self.points = np.asarray(points, dtype=np.float64)
         self.normals = np.asarray(normals, dtype=np.float64)
         self.features = np.asarray(features, dtype=np.float64)
         self.solid = solid
-        self.method = ("ward" if is_mesh else "kmeans") if split == "auto" else split
+        # "auto" is k-means for every modality: on vhacd61 it gave fewer hulls at the same
+        # concavity than Ward with connectivity on meshes (docs/decomposition.md).
+        self.method = "kmeans" if split == "auto" else split
         self.blend = float(blend)
+        # Blends tried at every split (relative to ``blend``); the split whose worse child is
+        # least concave wins.
+        self.candidates = tuple(float(c) for c in candidates) or (1.0,)
         self.max_split_points = int(max_split_points)
         self.concavity_samples = int(concavity_samples)
         self.seed = int(seed)
@@ -146,19 +157,14 @@ class Decomposer:
         sub = self.graph[indices][:, indices]
         return csgraph.connected_components(sub, directed=False)[1]
 
-    def _embedding(self, indices: np.ndarray) -> np.ndarray:
+    def _embedding(self, indices: np.ndarray, blend: float) -> np.ndarray:
         xyz = self.points[indices]
         xyz = (xyz - xyz.mean(axis=0)) / max(float(np.linalg.norm(xyz.std(axis=0))), 1e-9)
-        return np.concatenate([self.features[indices], self.blend * xyz], axis=1)
+        return np.concatenate([self.features[indices], blend * xyz], axis=1)
 
-    def _two_way(self, indices: np.ndarray, seed: int) -> np.ndarray:
-        """(m,) bool: which side of the split each point of the part goes to."""
-        labels = self._components(indices)
-        if labels.max() > 0:
-            # Disconnected part: the largest component against the rest, no clustering needed.
-            sizes = np.bincount(labels)
-            return labels != np.argmax(sizes)
-        x = self._embedding(indices)
+    def _cluster(self, indices: np.ndarray, blend: float, seed: int) -> np.ndarray:
+        """(m,) bool: a two-way clustering of the part on [features, blend * xyz]."""
+        x = self._embedding(indices, blend)
         rng = np.random.default_rng(seed)
         if len(indices) > self.max_split_points:
             sel = np.sort(rng.choice(len(indices), self.max_split_points, replace=False))
@@ -190,20 +196,39 @@ class Decomposer:
         node = self.tree.nodes[node_id]
         if node.children is not None:
             return node.children
-        if len(node.indices) < 2 * MIN_PART_POINTS:
+        idx = node.indices
+        if len(idx) < 2 * MIN_PART_POINTS:
             return None
-        side = self._two_way(node.indices, self.seed + node_id)
-        if side.sum() < MIN_PART_POINTS or (~side).sum() < MIN_PART_POINTS:
-            # Degenerate clustering: fall back to the median plane across the longest axis.
-            pts = self.points[node.indices]
-            axis = np.argmax(np.ptp(pts, axis=0))
-            side = pts[:, axis] > np.median(pts[:, axis])
+        best = None
+        for side in self._proposals(idx, self.seed + node_id):
             if side.sum() < MIN_PART_POINTS or (~side).sum() < MIN_PART_POINTS:
-                return None
-        a = self.tree.add(node_id, node.indices[~side], self.concavity(node.indices[~side]))
-        b = self.tree.add(node_id, node.indices[side], self.concavity(node.indices[side]))
+                continue
+            ca, cb = self.concavity(idx[~side]), self.concavity(idx[side])
+            score = (max(ca, cb), ca + cb)
+            if best is None or score < best[0]:
+                best = (score, side, ca, cb)
+        if best is None:
+            return None
+        _, side, ca, cb = best
+        a = self.tree.add(node_id, idx[~side], ca)
+        b = self.tree.add(node_id, idx[side], cb)
         node.children = (a.id, b.id)
         return node.children
+
+    def _proposals(self, indices: np.ndarray, seed: int):
+        """Candidate two-way splits of a part, as (m,) bool arrays."""
+        labels = self._components(indices)
+        sizes = np.bincount(labels)
+        if (sizes >= MIN_PART_POINTS).sum() > 1:
+            # Disconnected part: the largest component against the rest, no clustering needed.
+            yield labels != np.argmax(sizes)
+            return
+        for c in self.candidates:
+            yield self._cluster(indices, self.blend * c, seed)
+        # Always-available fallback: the median plane across the longest axis.
+        pts = self.points[indices]
+        axis = np.argmax(np.ptp(pts, axis=0))
+        yield pts[:, axis] > np.median(pts[:, axis])
 
     # ------------------------------------------------------------------ cutting
     def cut(self, threshold: float, max_hulls: int,
