@@ -34,6 +34,8 @@ def as_cloud(x: Any, *, n_points: int = 20000, seed: int = 0, **load_options: An
         return finalize(x, opts)
     if isinstance(x, (str, bytes)) or hasattr(x, "__fspath__"):
         return load(x, opts)
+    if isinstance(x, (np.ndarray, list)):
+        return finalize(OrientedCloud.from_arrays(np.asarray(x, dtype=np.float64)), opts)
     if type(x).__module__.startswith("trimesh"):
         return finalize(OrientedCloud.from_trimesh(x, n_points=opts.n_points or opts.mesh_points,
                                                    seed=seed), opts)
@@ -41,9 +43,8 @@ def as_cloud(x: Any, *, n_points: int = 20000, seed: int = 0, **load_options: An
         return finalize(OrientedCloud.from_open3d(x, n_points=opts.n_points or opts.mesh_points,
                                                   seed=seed), opts)
     if isinstance(x, tuple) and len(x) == 2:
-        return finalize(OrientedCloud.from_arrays(x[0], x[1]), opts)
-    if isinstance(x, np.ndarray) or isinstance(x, list):
-        return finalize(OrientedCloud.from_arrays(x), opts)
+        return finalize(OrientedCloud.from_arrays(np.asarray(x[0], dtype=np.float64),
+                                                  np.asarray(x[1], dtype=np.float64)), opts)
     raise InputError(f"cannot decompose a {type(x).__name__}: pass a path, an (n, 3) array, "
                      "(points, normals), an open3d geometry, a trimesh or an OrientedCloud")
 

@@ -23,12 +23,12 @@ from scipy.sparse import csgraph
 from scipy.spatial import cKDTree
 
 from .errors import InputError
-from .metrics import Hull, convex_hull, part_concavity
+from .metrics import Hull, convex_hull, hull_contains, part_concavity
 
 log = logging.getLogger(__name__)
 
 SPLIT_METHODS = ("auto", "kmeans", "ward")
-MIN_PART_POINTS = 8
+MIN_PART_POINTS = 4
 
 
 @dataclass
@@ -139,12 +139,27 @@ class Decomposer:
 
     # ------------------------------------------------------------------ measures
     def concavity(self, indices: np.ndarray) -> float:
-        """Concavity of the part made of the points ``indices`` (see metrics.part_concavity)."""
+        """Concavity of the part made of the points ``indices``.
+
+        As in the evaluation protocol (the shape intersected with the part's hull), the surface
+        of the piece is every cloud point inside the part's hull, the part's own and any other
+        part's that the hull swallows (see metrics.part_concavity for the measure itself).
+        """
         self.evaluations += 1
         pts = self.points[indices]
         if len(pts) < 4:
             return 0.0
-        return float(part_concavity(pts, self.solid, n_hull_samples=self.concavity_samples,
+        hull = convex_hull(pts)
+        lo, hi = hull.bounds
+        near = np.flatnonzero(np.all((self.points >= lo) & (self.points <= hi), axis=1))
+        near = near[~np.isin(near, indices, assume_unique=True)]
+        if len(near):
+            # Points at least a hair inside the hull (not those on a shared cut face).
+            swallowed = near[hull_contains(hull, self.points[near], tol=-1e-3)]
+            if len(swallowed):
+                pts = np.concatenate([pts, self.points[swallowed]])
+        return float(part_concavity(pts, self.solid, hull=hull,
+                                    n_hull_samples=self.concavity_samples,
                                     n_volume_samples=self.concavity_samples, seed=self.seed))
 
     def hull(self, node_id: int) -> Hull:
@@ -200,8 +215,8 @@ class Decomposer:
         if len(idx) < 2 * MIN_PART_POINTS:
             return None
         best = None
-        for side in self._proposals(idx, self.seed + node_id):
-            if side.sum() < MIN_PART_POINTS or (~side).sum() < MIN_PART_POINTS:
+        for side, min_size in self._proposals(idx, self.seed + node_id):
+            if side.sum() < min_size or (~side).sum() < min_size:
                 continue
             ca, cb = self.concavity(idx[~side]), self.concavity(idx[side])
             score = (max(ca, cb), ca + cb)
@@ -216,19 +231,31 @@ class Decomposer:
         return node.children
 
     def _proposals(self, indices: np.ndarray, seed: int):
-        """Candidate two-way splits of a part, as (m,) bool arrays."""
+        """Candidate two-way splits of a part: ((m,) bool side, smallest allowed side) pairs."""
         labels = self._components(indices)
-        sizes = np.bincount(labels)
-        if (sizes >= MIN_PART_POINTS).sum() > 1:
-            # Disconnected part: the largest component against the rest, no clustering needed.
-            yield labels != np.argmax(sizes)
-            return
-        for c in self.candidates:
-            yield self._cluster(indices, self.blend * c, seed)
-        # Always-available fallback: the median plane across the longest axis.
+        if labels.max() > 0:
+            # Disconnected part: the largest component against the rest. With several sizeable
+            # components nothing else is worth trying; a tiny stray piece competes with the rest.
+            sizes = np.bincount(labels)
+            yield labels != np.argmax(sizes), 1
+            if (sizes >= MIN_PART_POINTS).sum() > 1:
+                return
         pts = self.points[indices]
+        for c in self.candidates:
+            side = self._cluster(indices, self.blend * c, seed)
+            yield side, MIN_PART_POINTS
+            # The same split made planar: convex pieces meet along planes, and a clean planar
+            # cut leaves no holes in either side's surface.
+            planar = planar_cut(pts, side)
+            if planar is not None:
+                yield planar, MIN_PART_POINTS
+        # Always-available fallback: halve the part across its longest axis.
         axis = np.argmax(np.ptp(pts, axis=0))
-        yield pts[:, axis] > np.median(pts[:, axis])
+        order = np.argsort(pts[:, axis], kind="stable")
+        side = np.zeros(len(indices), dtype=bool)
+        side[order[len(order) // 2 :]] = True
+        yield side, 1
+
 
     # ------------------------------------------------------------------ cutting
     def cut(self, threshold: float, max_hulls: int,
@@ -291,6 +318,31 @@ class Decomposer:
             next_id += 1
         self.merged_concavity = conc
         return [parts[k] for k in sorted(parts)], [conc[k] for k in sorted(parts)]
+
+
+def planar_cut(points: np.ndarray, side: np.ndarray) -> np.ndarray | None:
+    """The plane that best reproduces a two-way labelling of (m, 3) ``points``.
+
+    The plane's normal is Fisher's discriminant direction of the two groups; its offset is the
+    one that disagrees with ``side`` on the fewest points. Returns the (m,) bool side of the
+    plane, or None when a group is too small to define a direction.
+    """
+    a, b = points[~side], points[side]
+    if len(a) < 2 or len(b) < 2:
+        return None
+    cov = np.cov(a.T) * (len(a) - 1) + np.cov(b.T) * (len(b) - 1)
+    cov += np.eye(3) * 1e-9 * max(np.trace(cov), 1e-12)
+    w = np.linalg.solve(cov, b.mean(axis=0) - a.mean(axis=0))
+    proj = points @ w
+    order = np.argsort(proj, kind="stable")
+    s = side[order]
+    # Cutting after position k puts order[:k] on the False side: errors = True's before k plus
+    # False's from k on.
+    errors = np.concatenate([[0], np.cumsum(s)]) + np.concatenate([[(~s).sum()], (~s).sum() - np.cumsum(~s)])
+    k = int(np.argmin(errors))
+    out = np.zeros(len(points), dtype=bool)
+    out[order[k:]] = True
+    return out
 
 
 def _link_components(points: np.ndarray, conn: sparse.csr_matrix, comp: np.ndarray) -> sparse.csr_matrix:

@@ -160,13 +160,14 @@ class Decomposition:
         """Write the hulls; return the files written.
 
         ``path`` ending in ``.obj``: one OBJ with an ``o hull_NNN`` object per hull. With
-        ``per_hull=True`` (or a ``path`` that is a directory or has no suffix), one file per hull
-        ``hull_NNN.obj`` (or ``.stl`` when ``path`` ends in ``.stl``) in that directory. Writes are
+        ``per_hull=True``, a ``path`` that is a directory or has no suffix: one ``hull_NNN.obj``
+        per hull in that directory; a ``path`` ending in ``.stl``: one ``hull_NNN.stl`` per hull
+        in the directory named by its stem. Writes are
         atomic; existing files are kept unless ``overwrite``.
         """
         target = Path(path)
         suffix = target.suffix.lower()
-        if per_hull or target.is_dir() or suffix == "":
+        if per_hull or target.is_dir() or suffix in ("", ".stl"):
             ext = ".obj"
             folder = target
             if suffix in (".obj", ".stl"):
