@@ -119,6 +119,8 @@ def build_parser() -> argparse.ArgumentParser:
     dec.add_argument("-k", "--max-hulls", type=int, default=64, help="hull budget (default 64)")
     dec.add_argument("--features", choices=["optimize", "model"], default="optimize",
                      help="optimise a feature field for this shape, or use the bundled model")
+    dec.add_argument("--model", metavar="CKPT",
+                     help="feed-forward model checkpoint for --features model (from `pointcvx train`)")
     dec.add_argument("--split", choices=["auto", "kmeans", "ward"], default="auto",
                      help="how a part is cut in two (auto: k-means on features + xyz)")
     dec.add_argument("--no-merge", action="store_true", help="skip the merge pass")
@@ -129,6 +131,51 @@ def build_parser() -> argparse.ArgumentParser:
     dec.add_argument("-v", "--verbose", action="store_true", help="log details to stderr")
     _add_load_options(dec)
     dec.set_defaults(func=cmd_decompose, points=20000)
+
+    prep = sub.add_parser(
+        "prepare",
+        help="build a training set for the feed-forward model",
+        description="Write one .npz per training shape into OUTDIR: watertight conversion, surface "
+        "samples with normals, convex-pair triplets and SDF samples. Shapes are procedural "
+        "non-convex solids plus the meshes of ../shared/data/train/random_urdfs (never the "
+        "benchmark or dev shapes). Resumable: shapes already written are skipped; failures are "
+        "recorded in OUTDIR/manifest.json.",
+    )
+    prep.add_argument("outdir", help="folder for the prepared shapes")
+    prep.add_argument("--procedural", type=int, default=200, metavar="N",
+                      help="procedural shapes to generate (default 200)")
+    prep.add_argument("--urdfs", metavar="DIR", default=None,
+                      help="folder of training meshes (default ../shared/data/train/random_urdfs)")
+    prep.add_argument("--no-urdfs", action="store_true", help="procedural shapes only")
+    prep.add_argument("--max-urdfs", type=int, default=None, metavar="N", help="use at most N meshes")
+    prep.add_argument("--jobs", type=int, default=1, help="worker processes (default 1)")
+    prep.add_argument("--seed", type=int, default=0)
+    prep.add_argument("-q", "--quiet", action="store_true", help="no progress bar, no summary")
+    prep.add_argument("-v", "--verbose", action="store_true", help="log details to stderr")
+    prep.set_defaults(func=cmd_prepare)
+
+    tr = sub.add_parser(
+        "train",
+        help="train the feed-forward feature model",
+        description="Train the feed-forward model on a folder written by `pointcvx prepare`, with "
+        "on-the-fly augmentation (rotations, point counts, noise, partial views, normal flips, "
+        "splat-like jitter). Checkpoints (last.pt, step_*.pt) and log.csv go to --out; an "
+        "existing run there is resumed. Runs unchanged under torchrun for several GPUs or nodes "
+        "(DistributedDataParallel; rank 0 writes).",
+    )
+    tr.add_argument("data", help="folder written by `pointcvx prepare`")
+    tr.add_argument("-o", "--out", required=True, metavar="RUN", help="run folder (checkpoints, log)")
+    tr.add_argument("--config", default="small",
+                    help="preset (small, paper) or a JSON config file (default small)")
+    tr.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="override a config field, e.g. --set transformer.layers=2 (repeatable)")
+    tr.add_argument("--steps", type=int, required=True, help="train up to this global step")
+    tr.add_argument("--points", type=int, default=4096, help="input points per shape (4096)")
+    tr.add_argument("--device", default=None, help="cpu, cuda, cuda:1 ... (default: best available)")
+    tr.add_argument("--seed", type=int, default=0)
+    tr.add_argument("--no-resume", action="store_true", help="start over even if RUN has a checkpoint")
+    tr.add_argument("-v", "--verbose", action="store_true", help="log details to stderr")
+    tr.set_defaults(func=cmd_train)
 
     ev = sub.add_parser(
         "evaluate",
@@ -193,7 +240,7 @@ def cmd_decompose(args: argparse.Namespace) -> int:
     try:
         result = decompose(
             args.input, threshold=args.threshold, max_hulls=args.max_hulls,
-            features=args.features, merge=not args.no_merge, split=args.split,
+            features=args.features, model=args.model, merge=not args.no_merge, split=args.split,
             n_points=args.points, seed=args.seed, progress=bars, **load_kwargs,
         )
     finally:
@@ -209,6 +256,54 @@ def cmd_decompose(args: argparse.Namespace) -> int:
     else:
         print(f"{summary['hulls']} hulls, max concavity {summary['max_concavity']:.4f}, "
               f"{summary['seconds']:.2f} s -> {summary['output']}")
+    return 0
+
+
+def cmd_prepare(args: argparse.Namespace) -> int:
+    from .training.data import prepare_dataset
+
+    bars = _Bars(not args.quiet)
+    manifest = prepare_dataset(
+        args.outdir, args.procedural, use_urdfs=not args.no_urdfs, seed=args.seed, jobs=args.jobs,
+        urdf_root=args.urdfs, max_urdfs=args.max_urdfs,
+        progress=lambda done, total, entry: bars("prepare", done, total),
+    )
+    bars.close()
+    ok = sum(1 for e in manifest.values() if e.get("ok"))
+    if not args.quiet:
+        print(f"{ok} of {len(manifest)} shapes prepared in {args.outdir}")
+    return 0 if ok else EXIT_INPUT
+
+
+def cmd_train(args: argparse.Namespace) -> int:
+    from .errors import InputError
+    from .model.config import ModelConfig
+    from .model.train import train
+    from .training.augment import AugmentConfig
+    from .training.data import TripletDataset
+
+    if Path(args.config).is_file():
+        config = ModelConfig.from_json(Path(args.config).read_text())
+    else:
+        try:
+            config = ModelConfig.preset(args.config)
+        except (KeyError, ValueError):
+            raise InputError(f"unknown config {args.config!r}: use small, paper or a JSON file") from None
+    try:
+        config = config.with_overrides([f"train.seed={args.seed}", *args.set])
+    except (KeyError, ValueError) as exc:
+        raise InputError(f"bad --set: {exc}") from None
+    data = Path(args.data)
+    if not data.is_dir():
+        raise InputError(f"{data}: no such folder (make one with `pointcvx prepare`)")
+    dataset = TripletDataset(data, augment=True, seed=args.seed,
+                             config=AugmentConfig(n_points=args.points))
+    if len(dataset) == 0:
+        raise InputError(f"{data}: no prepared shapes (run `pointcvx prepare {data}` first)")
+    if args.no_resume and (Path(args.out) / "last.pt").exists():
+        (Path(args.out) / "last.pt").unlink()
+    train(config, dataset, args.steps, args.out, resume=not args.no_resume, device=args.device)
+    print(f"trained to step {args.steps}: {Path(args.out) / 'last.pt'}")
     return 0
 
 

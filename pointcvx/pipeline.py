@@ -6,8 +6,11 @@ load -> oriented cloud -> solid -> features -> recursive split (+ merge) -> hull
 from __future__ import annotations
 
 import logging
+import os
+import pickle
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -55,13 +58,40 @@ SINGLE_SHAPE_TRIPLETS = {"pool_size": 8192, "n_anchors": 4096, "n_candidates": 2
                          "n_hard": 64, "n_uniform": 64}
 
 
+BUNDLED_MODEL = Path(__file__).parent / "data" / "model_small.pt"
+
+
+def bundled_model_path() -> Path | None:
+    """The model shipped inside the package, if this build has one."""
+    return BUNDLED_MODEL if BUNDLED_MODEL.is_file() else None
+
+
 def compute_features(cloud: OrientedCloud, solid, *, method: str = "optimize", seed: int = 0,
-                     steps: int = 300, progress: Progress | None = None):
-    """Return (feature source, (n, k) float32 features of ``cloud.points``)."""
+                     steps: int = 300, model: str | os.PathLike | None = None,
+                     progress: Progress | None = None):
+    """Return (feature source, (n, k) float32 features of ``cloud.points``).
+
+    ``method="model"`` runs the feed-forward network from ``model`` (a checkpoint written by
+    ``pointcvx train``), or the bundled one.
+    """
     if method not in FEATURE_METHODS:
         raise InputError(f"unknown feature method {method!r}; expected one of {FEATURE_METHODS}")
     if method == "model":
-        raise PointcvxError("this build ships no feed-forward model yet; use features='optimize'")
+        path = Path(model) if model is not None else bundled_model_path()
+        if path is None:
+            raise PointcvxError("this build ships no feed-forward model yet: train one with "
+                                "`pointcvx train` and pass --model PATH, or use --features optimize")
+        if not path.is_file():
+            raise InputError(f"{path}: no such model checkpoint")
+        from .model.source import ModelFeatureSource, load_model
+
+        try:
+            net = load_model(path)
+        except (KeyError, RuntimeError, ValueError, EOFError, pickle.UnpicklingError) as exc:
+            first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+            raise InputError(f"{path}: not a pointcvx model checkpoint ({first[:120]})") from None
+        source = ModelFeatureSource(net, cloud.points, cloud.normals)
+        return source, source.features(cloud.points)
     from .features import sample_triplets
     from .features.field import optimize_field
 
@@ -77,6 +107,7 @@ def decompose(
     threshold: float = 0.1,
     max_hulls: int = 64,
     features: str = "optimize",
+    model: str | os.PathLike | None = None,
     merge: bool = True,
     split: str = "auto",
     blend: float = 1.0,
@@ -97,7 +128,9 @@ def decompose(
     max_hulls : int
         Never make more hulls than this.
     features : {"optimize", "model"}
-        Where convex-aware features come from: optimised for this shape, or the bundled model.
+        Where convex-aware features come from: optimised for this shape, or a feed-forward model.
+    model : path, optional
+        Checkpoint of the feed-forward model (``pointcvx train``); default: the bundled one.
     merge : bool
         After splitting, join neighbouring parts whose joint hull stays under ``threshold``.
     split : {"auto", "kmeans", "ward"}
@@ -135,7 +168,8 @@ def decompose(
     solid = solid_for(cloud)
     timings["solid"] = time.perf_counter() - t
     t = time.perf_counter()
-    _, feats = compute_features(cloud, solid, method=features, seed=seed, progress=progress)
+    _, feats = compute_features(cloud, solid, method=features, seed=seed, model=model,
+                                progress=progress)
     timings["features"] = time.perf_counter() - t
     t = time.perf_counter()
     with threadpool_limits(1):
@@ -143,6 +177,7 @@ def decompose(
                                 is_mesh=cloud.mesh is not None, blend=blend, seed=seed)
     timings["tree"] = time.perf_counter() - t
     params = {"threshold": float(threshold), "max_hulls": int(max_hulls), "features": features,
+              "model": None if model is None else str(model),
               "merge": bool(merge), "split": decomposer.method, "blend": float(blend),
               "n_points": int(n_points),
               "seed": int(seed), **load_options}

@@ -1,0 +1,53 @@
+"""The model's commands end to end: prepare a (tiny) training set, train a (tiny) model, resume,
+and decompose with it as the feature source."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from conftest import ROOT
+from pointcvx.cli import EXIT_INPUT, main
+from pointcvx.model.train import read_log
+
+
+@pytest.fixture(scope="module")
+def tiny_data(tmp_path_factory):
+    out = tmp_path_factory.mktemp("prepared")
+    assert main(["prepare", str(out), "--procedural", "2", "--max-urdfs", "1", "-q"]) == 0
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert len(manifest) == 3 and all(e["ok"] for e in manifest.values())
+    assert sum(1 for e in manifest.values() if e["source"].endswith(".obj")) == 1
+    return out
+
+
+def test_prepare_train_resume_and_decompose_with_the_model(tiny_data, tmp_path, capsys):
+    run = tmp_path / "run"
+    base = ["train", str(tiny_data), "-o", str(run), "--config", "tiny", "--points", "1024",
+            "--device", "cpu"]
+    assert main([*base, "--steps", "3"]) == 0
+    assert main([*base, "--steps", "5"]) == 0  # resumes from step 3
+    log = read_log(run / "log.csv")
+    assert [int(r["step"]) for r in log] == [1, 2, 3, 4, 5]
+    capsys.readouterr()
+    out = tmp_path / "hulls.obj"
+    args = ["decompose", str(ROOT / "io" / "mug.obj"), "--features", "model", "--model",
+            str(run / "last.pt"), "-n", "4000", "-o", str(out), "--json", "-t", "0.2", "-k", "12"]
+    assert main(args) == 0
+    summary = json.loads(capsys.readouterr().out)
+    assert 1 <= summary["hulls"] <= 12 and out.exists()
+
+
+def test_train_and_model_errors(tmp_path, capsys):
+    assert main(["train", str(tmp_path / "none"), "-o", str(tmp_path / "r"), "--steps", "1"]) == EXIT_INPUT
+    assert "no such folder" in capsys.readouterr().err
+    assert main(["train", str(tmp_path), "-o", str(tmp_path / "r"), "--steps", "1",
+                 "--config", "huge"]) == EXIT_INPUT
+    assert "unknown config" in capsys.readouterr().err
+    bogus = tmp_path / "bogus.pt"
+    bogus.write_bytes(b"not a checkpoint")
+    args = ["decompose", str(ROOT / "io" / "mug.obj"), "--features", "model", "--model", str(bogus),
+            "-o", str(tmp_path / "h.obj")]
+    assert main(args) == EXIT_INPUT
+    assert "not a pointcvx model checkpoint" in capsys.readouterr().err
