@@ -80,7 +80,7 @@ def _unit(v: np.ndarray) -> np.ndarray:
     return v / np.where(n > 0, n, 1.0)
 
 
-def check_points(points: Any, what: str = "points") -> np.ndarray:
+def check_points(points: Any, what: str = "points", allow_empty: bool = False) -> np.ndarray:
     """Validate and return ``points`` as (n, 3) float64; raise :class:`InputError` otherwise."""
     try:
         pts = np.asarray(points, dtype=np.float64)
@@ -88,7 +88,7 @@ def check_points(points: Any, what: str = "points") -> np.ndarray:
         raise InputError(f"{what} are not numeric: {exc}") from None
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise InputError(f"{what} must have shape (n, 3), got {pts.shape}")
-    if len(pts) == 0:
+    if len(pts) == 0 and not allow_empty:
         raise InputError(f"no {what}: the input is empty")
     bad = ~np.isfinite(pts).all(axis=1)
     if bad.any():

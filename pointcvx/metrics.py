@@ -28,6 +28,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .cloud import check_points
 from .errors import InputError
 
 log = logging.getLogger(__name__)
@@ -96,15 +97,7 @@ class Hull:
 
 
 def _as_points(points, what: str = "points") -> np.ndarray:
-    try:
-        pts = np.asarray(points, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise InputError(f"{what} are not numeric: {exc}") from None
-    if pts.ndim != 2 or pts.shape[1] != 3:
-        raise InputError(f"{what} must have shape (n, 3), got {pts.shape}")
-    if not np.isfinite(pts).all():
-        raise InputError(f"{what} have NaN or infinite coordinates")
-    return pts
+    return check_points(points, what, allow_empty=True)
 
 
 def _triangle_areas(tri: np.ndarray) -> np.ndarray:

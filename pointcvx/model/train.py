@@ -30,6 +30,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from ..features.loss import info_nce
+from ..training.shapes import random_rotation  # noqa: F401 - re-exported for callers
 from .config import ModelConfig
 from .network import FeatureNet
 
@@ -163,15 +164,6 @@ def training_step(model: nn.Module, batch: dict[str, Any], optimizer: torch.opti
 # -------------------------------------------------------------------------- augmentation
 XYZ_KEYS = ("points", "pool", "positive", "sdf_points")
 DIRECTION_KEYS = ("normals",)
-
-
-def random_rotation(rng: np.random.Generator) -> np.ndarray:
-    """(3, 3) float64 rotation drawn uniformly (QR of a Gaussian matrix, sign-fixed)."""
-    q, r = np.linalg.qr(rng.normal(size=(3, 3)))
-    q *= np.sign(np.diag(r))
-    if np.linalg.det(q) < 0:
-        q[:, 0] = -q[:, 0]
-    return q
 
 
 def rotate_item(item: dict[str, np.ndarray], rotation: np.ndarray) -> dict[str, np.ndarray]:
