@@ -70,6 +70,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--split", default="auto")
     ap.add_argument("--blend", type=float, default=1.0)
     ap.add_argument("--features", default="optimize")
+    ap.add_argument("--model", default=None, help="checkpoint for --features model")
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--limit", type=int, default=None)
     ap.add_argument("--seed", type=int, default=0)
@@ -79,7 +80,7 @@ def main(argv: list[str] | None = None) -> int:
         files = files[: args.limit]
     opts = {"threshold": args.threshold, "max_hulls": args.max_hulls, "split": args.split,
             "blend": args.blend,
-            "features": args.features, "seed": args.seed}
+            "features": args.features, "model": args.model, "seed": args.seed}
     rows = []
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
         futures = {pool.submit(run_one, f, opts): f for f in files}
