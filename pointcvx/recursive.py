@@ -23,7 +23,7 @@ from scipy.sparse import csgraph
 from scipy.spatial import cKDTree
 
 from .errors import InputError
-from .metrics import Hull, convex_hull, hull_contains, part_concavity
+from .metrics import convex_hull, hull_contains, part_concavity
 
 log = logging.getLogger(__name__)
 
@@ -132,7 +132,6 @@ class Decomposer:
         self.seed = int(seed)
         self.graph = neighbour_graph(self.points)
         self.tree = SplitTree()
-        self._hulls: dict[int, Hull] = {}
         self.evaluations = 0
         root = np.arange(len(self.points))
         self.tree.add(None, root, self.concavity(root))
@@ -161,11 +160,6 @@ class Decomposer:
         return float(part_concavity(pts, self.solid, hull=hull,
                                     n_hull_samples=self.concavity_samples,
                                     n_volume_samples=self.concavity_samples, seed=self.seed))
-
-    def hull(self, node_id: int) -> Hull:
-        if node_id not in self._hulls:
-            self._hulls[node_id] = convex_hull(self.points[self.tree.nodes[node_id].indices])
-        return self._hulls[node_id]
 
     # ------------------------------------------------------------------ splitting
     def _components(self, indices: np.ndarray) -> np.ndarray:
@@ -285,11 +279,12 @@ class Decomposer:
                 progress(len(heap) + len(done), -heap[0][0] if heap else 0.0)
         return sorted(done + [node_id for _, node_id in heap])
 
-    def merge(self, leaves: list[int], threshold: float) -> list[np.ndarray]:
+    def merge(self, leaves: list[int], threshold: float) -> tuple[list[np.ndarray], list[float]]:
         """Greedily join neighbouring parts while the joint part stays under ``threshold``.
 
-        Returns the final parts as index arrays. Neighbours: parts linked by an edge of the
-        surface neighbour graph. The pair with the lowest joint concavity is merged first.
+        Returns the final parts as index arrays, and their concavities. Neighbours: parts linked
+        by an edge of the surface neighbour graph. The pair with the lowest joint concavity is
+        merged first.
         """
         parts = {i: self.tree.nodes[leaf].indices for i, leaf in enumerate(leaves)}
         conc = {i: self.tree.nodes[leaf].concavity for i, leaf in enumerate(leaves)}
@@ -316,7 +311,6 @@ class Decomposer:
             parts[next_id], conc[next_id] = merged, best
             label[merged] = next_id
             next_id += 1
-        self.merged_concavity = conc
         return [parts[k] for k in sorted(parts)], [conc[k] for k in sorted(parts)]
 
 
