@@ -452,6 +452,23 @@ def rv_term(volume_difference: float) -> float:
     return float((abs(volume_difference) / _FOUR_THIRDS_PI) ** (1.0 / 3.0))
 
 
+def _concavity_terms(hb_part: float, hb_hull: float, hull_volume: float, part_volume: float,
+                     k: float) -> dict[str, float]:
+    """CoACD's concavity ``max(Hb, k * Rv)`` from its two Hausdorff directions and the volumes,
+    with every term, as both concavity functions report them."""
+    hb = max(hb_part, hb_hull)
+    rv = rv_term(hull_volume - part_volume)
+    return {
+        "concavity": max(hb, k * rv),
+        "hb": hb,
+        "hb_part": hb_part,
+        "hb_hull": hb_hull,
+        "rv": rv,
+        "hull_volume": float(hull_volume),
+        "part_volume": float(part_volume),
+    }
+
+
 # ------------------------------------------------------------------- concavity during decomposition
 def _max_outside(solid, samples: np.ndarray, dist: np.ndarray) -> float:
     """max of (n,) ``dist`` over the (n, 3) ``samples`` not inside ``solid`` (0 if none).
@@ -548,21 +565,9 @@ def part_concavity(
             outside_fraction = float(1.0 - solid.contains(vs).mean())
             part_volume = hull.volume * (1.0 - outside_fraction)
         hb_hull = _max_outside(solid, hs, d_hs)
-    hb = max(hb_part, hb_hull)
-    rv = rv_term(hull.volume - part_volume)
-    concavity = max(hb, k * rv)
-    if not return_terms:
-        return concavity
-    return {
-        "concavity": concavity,
-        "hb": hb,
-        "hb_part": hb_part,
-        "hb_hull": hb_hull,
-        "rv": rv,
-        "hull_volume": float(hull.volume),
-        "part_volume": float(part_volume),
-        "outside_fraction": outside_fraction,
-    }
+    terms = _concavity_terms(hb_part, hb_hull, hull.volume, part_volume, k)
+    terms["outside_fraction"] = outside_fraction
+    return terms if return_terms else terms["concavity"]
 
 
 # ------------------------------------------------------------------------------ evaluation
@@ -597,20 +602,8 @@ def mesh_concavity(
     sh = _sample_hull_surface(hull, int(n_samples), rng)
     hb_part = _max_inside_depth(hull, sp)
     hb_hull = _lipschitz_max(sh, _distance_fn(v, f))
-    hb = max(hb_part, hb_hull)
-    rv = rv_term(hull.volume - volume)
-    concavity = max(hb, k * rv)
-    if not return_terms:
-        return concavity
-    return {
-        "concavity": concavity,
-        "hb": hb,
-        "hb_part": hb_part,
-        "hb_hull": hb_hull,
-        "rv": rv,
-        "hull_volume": float(hull.volume),
-        "part_volume": float(volume),
-    }
+    terms = _concavity_terms(hb_part, hb_hull, hull.volume, volume, k)
+    return terms if return_terms else terms["concavity"]
 
 
 def _hull_of(item) -> np.ndarray:

@@ -30,7 +30,7 @@ DRAGON = DATA / "dev" / "scans" / "dragon_50k.ply"
 def dragon():
     """The watertight dragon mesh (25k vertices) with its outward vertex normals."""
     if not DRAGON.is_file():
-        pytest.skip(f"{DRAGON} not found")
+        pytest.fail(f"{DRAGON} not found: the shared data must sit beside the checkout")
     mesh = trimesh.load(DRAGON, process=False)
     assert mesh.is_watertight and mesh.volume > 0
     return mesh

@@ -123,7 +123,7 @@ def test_watertight_mesh_open_sheet_becomes_slab():
 def test_watertight_mesh_real_soups(name):
     path = DATA / "dev" / "objects" / name
     if not path.is_file():
-        pytest.skip(f"{path} not available")
+        pytest.fail(f"{path} not available: the shared data must sit beside the checkout")
     cloud = pointcvx.load(path, normalize=True, n_points=2000)
     out = watertight_mesh(cloud.mesh, resolution=128)
     assert out.is_watertight and out.is_winding_consistent
@@ -192,7 +192,7 @@ def test_solid_from_cloud_noisy():
 def test_solid_from_cloud_real_mesh_samples(rel, threshold):
     path = DATA / "dev" / rel
     if not path.is_file():
-        pytest.skip(f"{path} not available")
+        pytest.fail(f"{path} not available: the shared data must sit beside the checkout")
     cloud = pointcvx.load(path, normalize=True, n_points=20000)
     truth = closed_mesh_solid(cloud.mesh)
     assert truth is not None  # both are closed meshes: the exact solid
@@ -205,7 +205,7 @@ def test_solid_from_cloud_real_mesh_samples(rel, threshold):
 def test_solid_from_cloud_bundled_samples(name):
     path = SAMPLES / name
     if not path.is_file():
-        pytest.skip(f"{path} not generated (tools/make_samples.py)")
+        pytest.fail(f"{path} missing: run tools/make_samples.py")
     cloud = pointcvx.load(path, normalize=True)
     solid = solid_for(cloud, cache=False)
     assert solid.volume > 0.01
