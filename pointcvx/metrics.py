@@ -301,11 +301,9 @@ def _distance_fn(vertices: np.ndarray, faces: np.ndarray):
     """A function (n, 3) points -> (n,) unsigned distance to a triangle soup (Embree, float32)."""
     import open3d as o3d
 
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(
-        o3d.core.Tensor(np.ascontiguousarray(vertices, dtype=np.float32)),
-        o3d.core.Tensor(np.ascontiguousarray(faces, dtype=np.uint32)),
-    )
+    from .solid import raycasting_scene
+
+    scene = raycasting_scene(vertices, faces)
 
     def distance(points: np.ndarray) -> np.ndarray:
         q = o3d.core.Tensor(np.ascontiguousarray(points, dtype=np.float32))

@@ -18,6 +18,18 @@ _VOTE_DIRS = np.array(
 _VOTE_DIRS /= np.linalg.norm(_VOTE_DIRS, axis=1, keepdims=True)
 
 
+def raycasting_scene(vertices: np.ndarray, faces: np.ndarray):
+    """An open3d ``RaycastingScene`` (Embree) over (v, 3) vertices and (f, 3) faces."""
+    import open3d as o3d
+
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(
+        o3d.core.Tensor(np.ascontiguousarray(vertices, dtype=np.float32)),
+        o3d.core.Tensor(np.ascontiguousarray(faces, dtype=np.uint32)),
+    )
+    return scene
+
+
 @dataclass(eq=False)
 class Solid:
     """The region enclosed by a closed triangle mesh.
@@ -50,14 +62,7 @@ class Solid:
     def scene(self):
         """The open3d RaycastingScene over the triangles (built once, lazily)."""
         if self._scene is None:
-            import open3d as o3d
-
-            scene = o3d.t.geometry.RaycastingScene()
-            scene.add_triangles(
-                o3d.core.Tensor(self.vertices.astype(np.float32)),
-                o3d.core.Tensor(self.faces.astype(np.uint32)),
-            )
-            self._scene = scene
+            self._scene = raycasting_scene(self.vertices, self.faces)
         return self._scene
 
     def __getstate__(self):  # RaycastingScene does not pickle; rebuild it where it is needed
@@ -109,32 +114,3 @@ class Solid:
 
         q = o3d.core.Tensor(np.asarray(points, dtype=np.float32))
         return self.scene.compute_distance(q).numpy().astype(np.float64)
-
-    def segment_inside(self, a: np.ndarray, b: np.ndarray, eps: float = 1e-4) -> np.ndarray:
-        """(n,) bool: whether the segment from surface point ``a`` to surface point ``b`` (both
-        (n, 3)) stays inside the solid, i.e. its interior crosses no surface.
-
-        The segment is shot from just past ``a`` (by ``eps``) and must reach ``b`` (within
-        ``eps``) before hitting anything, and its midpoint must be inside (this rejects segments
-        that run outside along the surface).
-        """
-        a = np.asarray(a, dtype=np.float64)
-        b = np.asarray(b, dtype=np.float64)
-        d = b - a
-        length = np.linalg.norm(d, axis=1)
-        ok = length > 2 * eps
-        u = d / np.where(ok, length, 1.0)[:, None]
-        t = self.first_hit(a + u * eps, u)
-        clear = t >= length - 2 * eps
-        mid_inside = self.contains((a + b) / 2)
-        return ok & clear & mid_inside
-
-    def sample_inside(self, n: int, seed: int = 0, lo=None, hi=None) -> np.ndarray:
-        """(m, 3) float: uniform samples of the solid by rejection from its bounding box (or from
-        the box ``lo``..``hi``); m is about n times the filled fraction."""
-        rng = np.random.default_rng(seed)
-        blo, bhi = self.bounds
-        lo = blo if lo is None else np.maximum(lo, blo)
-        hi = bhi if hi is None else np.minimum(hi, bhi)
-        p = rng.uniform(lo, hi, size=(n, 3))
-        return p[self.contains(p)]

@@ -69,7 +69,7 @@ import numpy as np
 
 from .cloud import check_points
 from .errors import InputError
-from .solid import Solid
+from .solid import Solid, raycasting_scene
 
 log = logging.getLogger(__name__)
 
@@ -284,10 +284,7 @@ def _closest(vertices: np.ndarray, faces: np.ndarray, query: np.ndarray, chunk: 
     """
     import open3d as o3d
 
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(
-        o3d.core.Tensor(vertices.astype(np.float32)), o3d.core.Tensor(faces.astype(np.uint32))
-    )
+    scene = raycasting_scene(vertices, faces)
     n = len(query)
     dist = np.empty(n, dtype=np.float32)
     near = np.empty((n, 3), dtype=np.float32)

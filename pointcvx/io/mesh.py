@@ -86,11 +86,9 @@ def inside_fraction(mesh, points: np.ndarray, n_rays: int = 8, seed: int = 0) ->
     """
     import open3d as o3d
 
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(
-        o3d.core.Tensor(np.asarray(mesh.vertices, dtype=np.float32)),
-        o3d.core.Tensor(np.asarray(mesh.faces, dtype=np.uint32)),
-    )
+    from ..solid import raycasting_scene
+
+    scene = raycasting_scene(np.asarray(mesh.vertices), np.asarray(mesh.faces))
     rng = np.random.default_rng(seed)
     m = len(points)
     origins = np.repeat(points.astype(np.float32), n_rays, axis=0)
