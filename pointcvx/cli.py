@@ -170,10 +170,16 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                     help="override a config field, e.g. --set transformer.layers=2 (repeatable)")
     tr.add_argument("--steps", type=int, required=True, help="train up to this global step")
+    tr.add_argument("--schedule-steps", type=int, default=None, metavar="N",
+                    help="length of the cosine learning-rate schedule (default --steps); lets a run "
+                    "stop early and be continued later on the same schedule")
     tr.add_argument("--points", type=int, default=4096, help="input points per shape (4096)")
     tr.add_argument("--device", default=None, help="cpu, cuda, cuda:1 ... (default: best available)")
     tr.add_argument("--seed", type=int, default=0)
     tr.add_argument("--no-resume", action="store_true", help="start over even if RUN has a checkpoint")
+    tr.add_argument("--init", metavar="CKPT", default=None,
+                    help="start a new run from these weights (fine-tuning; fresh optimiser and schedule)")
+    tr.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     tr.add_argument("-v", "--verbose", action="store_true", help="log details to stderr")
     tr.set_defaults(func=cmd_train)
 
@@ -194,6 +200,10 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--json", action="store_true", help="print JSON")
     ev.add_argument("-v", "--verbose", action="store_true", help="log details to stderr")
     ev.set_defaults(func=cmd_evaluate)
+
+    from .bench import add_parser as add_bench
+
+    add_bench(sub)
     return parser
 
 
@@ -293,6 +303,8 @@ def cmd_train(args: argparse.Namespace) -> int:
         config = config.with_overrides([f"train.seed={args.seed}", *args.set])
     except (KeyError, ValueError) as exc:
         raise InputError(f"bad --set: {exc}") from None
+    if args.init is not None and not Path(args.init).is_file():
+        raise InputError(f"{args.init}: no such checkpoint")
     data = Path(args.data)
     if not data.is_dir():
         raise InputError(f"{data}: no such folder (make one with `pointcvx prepare`)")
@@ -302,8 +314,30 @@ def cmd_train(args: argparse.Namespace) -> int:
         raise InputError(f"{data}: no prepared shapes (run `pointcvx prepare {data}` first)")
     if args.no_resume and (Path(args.out) / "last.pt").exists():
         (Path(args.out) / "last.pt").unlink()
-    train(config, dataset, args.steps, args.out, resume=not args.no_resume, device=args.device)
-    print(f"trained to step {args.steps}: {Path(args.out) / 'last.pt'}")
+    bar = None
+
+    def progress(step: int, steps: int, losses: dict) -> None:
+        nonlocal bar
+        if args.quiet:
+            return
+        if bar is None:
+            from tqdm import tqdm
+
+            bar = tqdm(total=steps, initial=step - 1, desc="train", unit="step", file=sys.stderr,
+                       dynamic_ncols=True)
+        bar.update(1)
+        bar.set_postfix(loss=f"{losses['loss']:.3f}", refresh=False)
+
+    try:
+        train(config, dataset, args.steps, args.out, resume=not args.no_resume, device=args.device,
+              init=args.init, progress=progress, total_steps=args.schedule_steps)
+    except ValueError as exc:
+        raise InputError(str(exc)) from None
+    finally:
+        if bar is not None:
+            bar.close()
+    if not args.quiet:
+        print(f"trained to step {args.steps}: {Path(args.out) / 'last.pt'}")
     return 0
 
 

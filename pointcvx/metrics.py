@@ -924,6 +924,53 @@ def _evaluate(mesh, hulls, n_samples, seed, k, n_volume_samples, coverage_tol, w
     }
 
 
+def evaluate_points(points, hulls, *, n_samples: int = 20000, seed: int = 0,
+                    coverage_tol: float = 0.01) -> dict:
+    """Score a decomposition of a shape known only as points (a splat or a scan).
+
+    Without a closed surface there is no part volume, so only the surface terms are measured:
+    both are taken after normalising ``points`` to [-1, 1]^3.
+
+    Parameters
+    ----------
+    points : (n, 3) float
+        The shape's surface points (e.g. the loaded splat centres), in the hulls' units.
+    hulls : sequence of Hull, trimesh.Trimesh or (m, 3) float
+    n_samples : int
+        Points drawn from ``points`` and from the union of hull surfaces.
+    seed : int
+    coverage_tol : float
+        Distance (normalised units) within which a point counts as inside a hull.
+
+    Returns
+    -------
+    dict with ``hulls``, ``reconstruction`` (Chamfer distance between the points and the union
+    of hull surfaces), ``coverage`` (fraction of points inside some hull) and ``outside_max`` (the
+    largest distance from a point to the union, i.e. the worst uncovered point).
+    """
+    from .cloud import Normalization
+
+    pts = _as_points(points)
+    raw = [_hull_of(h) for h in hulls]
+    if not raw:
+        raise InputError("no hulls to evaluate")
+    norm = Normalization.to_unit_cube(pts)
+    pts = norm.forward(pts)
+    hl = [convex_hull(norm.forward(r)) for r in raw]
+    rng = np.random.default_rng(seed)
+    if len(pts) > n_samples:
+        pts = pts[rng.choice(len(pts), int(n_samples), replace=False)]
+    su = _union_surface_samples(hl, int(n_samples), rng)
+    inside = _inside_any(hl, pts, coverage_tol)
+    outside = nearest_distance(pts[~inside], su) if (~inside).any() else np.zeros(1)
+    return {
+        "hulls": len(hl),
+        "reconstruction": chamfer_distance(pts, su),
+        "coverage": float(inside.mean()),
+        "outside_max": float(outside.max()),
+    }
+
+
 # ------------------------------------------------------------------------------------ files
 def _obj_object_order(path: str) -> list[str]:
     names = []

@@ -5,6 +5,7 @@ load -> oriented cloud -> solid -> features -> recursive split (+ merge) -> hull
 
 from __future__ import annotations
 
+import functools
 import logging
 import os
 import pickle
@@ -66,8 +67,18 @@ def bundled_model_path() -> Path | None:
     return BUNDLED_MODEL if BUNDLED_MODEL.is_file() else None
 
 
+@functools.lru_cache(maxsize=4)
+def _cached_model(path: str, mtime_ns: int, size: int):
+    """The network of checkpoint ``path``, loaded once per process (keyed by the file's mtime and
+    size too, so a rewritten checkpoint is read again): decomposing many shapes in a loop does
+    not reload it."""
+    from .model.source import load_model
+
+    return load_model(path)
+
+
 def compute_features(cloud: OrientedCloud, solid, *, method: str = "optimize", seed: int = 0,
-                     steps: int = 300, model: str | os.PathLike | None = None,
+                     steps: int = 300, model: str | os.PathLike | None = None, views: int = 1,
                      progress: Progress | None = None):
     """Return (feature source, (n, k) float32 features of ``cloud.points``).
 
@@ -83,14 +94,14 @@ def compute_features(cloud: OrientedCloud, solid, *, method: str = "optimize", s
                                 "`pointcvx train` and pass --model PATH, or use --features optimize")
         if not path.is_file():
             raise InputError(f"{path}: no such model checkpoint")
-        from .model.source import ModelFeatureSource, load_model
+        from .model.source import ModelFeatureSource
 
         try:
-            net = load_model(path)
+            net = _cached_model(str(path.resolve()), path.stat().st_mtime_ns, path.stat().st_size)
         except (KeyError, RuntimeError, ValueError, EOFError, pickle.UnpicklingError) as exc:
             first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
             raise InputError(f"{path}: not a pointcvx model checkpoint ({first[:120]})") from None
-        source = ModelFeatureSource(net, cloud.points, cloud.normals)
+        source = ModelFeatureSource(net, cloud.points, cloud.normals, views=views)
         return source, source.features(cloud.points)
     from .features import sample_triplets
     from .features.field import optimize_field
@@ -108,6 +119,7 @@ def decompose(
     max_hulls: int = 64,
     features: str = "optimize",
     model: str | os.PathLike | None = None,
+    views: int = 1,
     merge: bool = True,
     split: str = "auto",
     blend: float = 1.0,
@@ -131,6 +143,9 @@ def decompose(
         Where convex-aware features come from: optimised for this shape, or a feed-forward model.
     model : path, optional
         Checkpoint of the feed-forward model (``pointcvx train``); default: the bundled one.
+    views : int
+        With the model: encode the shape in this many orientations and use the concatenated
+        features (a test-time ensemble; each view costs one more network pass).
     merge : bool
         After splitting, join neighbouring parts whose joint hull stays under ``threshold``.
     split : {"auto", "kmeans", "ward"}
@@ -155,6 +170,8 @@ def decompose(
         raise InputError(f"threshold must be positive, got {threshold}")
     if max_hulls < 1:
         raise InputError(f"max_hulls must be at least 1, got {max_hulls}")
+    if int(views) != views or views < 1:
+        raise InputError(f"views must be a positive integer, got {views}")
     from .recursive import SPLIT_METHODS, Decomposer
     from .watertight import solid_for
 
@@ -169,7 +186,7 @@ def decompose(
     timings["solid"] = time.perf_counter() - t
     t = time.perf_counter()
     _, feats = compute_features(cloud, solid, method=features, seed=seed, model=model,
-                                progress=progress)
+                                views=int(views), progress=progress)
     timings["features"] = time.perf_counter() - t
     t = time.perf_counter()
     with threadpool_limits(1):
@@ -177,7 +194,7 @@ def decompose(
                                 is_mesh=cloud.mesh is not None, blend=blend, seed=seed)
     timings["tree"] = time.perf_counter() - t
     params = {"threshold": float(threshold), "max_hulls": int(max_hulls), "features": features,
-              "model": None if model is None else str(model),
+              "model": None if model is None else str(model), "views": int(views),
               "merge": bool(merge), "split": decomposer.method, "blend": float(blend),
               "n_points": int(n_points),
               "seed": int(seed), **load_options}

@@ -327,3 +327,18 @@ def test_evaluate_repairs_an_open_mesh():
     assert not open_cube.is_watertight
     r = evaluate(open_cube, [cube], n_samples=5000, watertight_resolution=64)
     assert r["shape"].startswith("watertight_mesh") and r["concavity"] < 0.05
+
+
+def test_evaluate_points_on_a_sphere_cloud():
+    pts = sample_surface(trimesh.creation.icosphere(4), 20000, seed=0)[0] * 3.0 + 5.0  # any units
+    own = metrics.evaluate_points(pts, [pts])
+    assert own["hulls"] == 1 and own["coverage"] == 1.0 and own["outside_max"] == 0.0
+    assert own["reconstruction"] < 0.02  # two 20k samplings of one sphere: spacing-limited
+    # the upper half only: every lower point is outside, at most the sphere's diameter away
+    half = metrics.evaluate_points(pts, [pts[pts[:, 2] > 5.0]])
+    assert half["coverage"] == pytest.approx(0.5, abs=0.02)
+    assert 0.9 < half["outside_max"] < 1.01  # unit radius after normalising to [-1, 1]^3
+    assert half["reconstruction"] > 5 * own["reconstruction"]
+    assert metrics.evaluate_points(pts, [pts], seed=3) == metrics.evaluate_points(pts, [pts], seed=3)
+    with pytest.raises(InputError):
+        metrics.evaluate_points(pts, [])

@@ -34,7 +34,14 @@ from pointcvx.model.network import (
     scatter_planes,
     voxelize,
 )
-from pointcvx.model.train import batch_indices, collate, random_rotation, read_log, rotate_item
+from pointcvx.model.train import (
+    batch_indices,
+    collate,
+    export_weights,
+    random_rotation,
+    read_log,
+    rotate_item,
+)
 from pointcvx.solid import Solid
 
 N_POINTS = 1024
@@ -230,6 +237,13 @@ def test_save_load_round_trip(tmp_path, dataset):
     a = ModelFeatureSource(model, it["points"], it["normals"]).features(it["pool"])
     b = ModelFeatureSource(loaded, it["points"], it["normals"]).features(it["pool"])
     assert np.array_equal(a, b)
+    # the shippable export keeps weights, config and step, drops the optimiser, and is smaller
+    shipped = export_weights(path, tmp_path / "ship.pt", extra={"note": "test"})
+    small = load_checkpoint(shipped)
+    assert small["optimizer"] is None and small["step"] == 1 and small["extra"] == {"note": "test"}
+    assert shipped.stat().st_size < path.stat().st_size
+    c = ModelFeatureSource(load_model(shipped), it["points"], it["normals"]).features(it["pool"])
+    assert np.array_equal(a, c)
 
 
 def test_feature_source_deterministic(dataset):
@@ -246,6 +260,34 @@ def test_feature_source_deterministic(dataset):
     assert np.array_equal(src.features(it["pool"][:5]), f1[:5])  # chunking does not matter
     assert src.features(np.zeros((0, 3))).shape == (0, 16)
     assert src.sdf(it["pool"][:7]).shape == (7,)
+
+
+def test_rotation_views_ensemble(dataset):
+    from pointcvx.model.source import view_rotations
+
+    rots = view_rotations(4)
+    assert np.array_equal(rots[0], np.eye(3))
+    assert np.allclose(rots @ rots.transpose(0, 2, 1), np.eye(3), atol=1e-12)
+    assert np.allclose(np.linalg.det(rots), 1.0) and np.array_equal(rots, view_rotations(4))
+    seed_everything(2)
+    model = FeatureNet(tiny_config())
+    it = dataset[1]
+    one = ModelFeatureSource(model, it["points"], it["normals"]).features(it["pool"])
+    ens = ModelFeatureSource(model, it["points"], it["normals"], views=3)
+    f = ens.features(it["pool"])
+    assert ens.dim == 48 and f.shape == (len(it["pool"]), 48)
+    assert np.allclose(np.linalg.norm(f, axis=1), 1.0, atol=1e-5)
+    assert np.allclose(f[:, :16] * np.sqrt(3), one, atol=1e-6)  # view 0 is the plain pass
+    # view 2 is the network run on the rotated cloud, queried at the rotated points
+    r = rots[2].astype(np.float32)
+    rotated = ModelFeatureSource(model, it["points"] @ r.T, it["normals"] @ r.T).features(it["pool"] @ r.T)
+    assert np.allclose(f[:, 32:] * np.sqrt(3), rotated, atol=1e-5)
+    # cosine of the ensemble = mean of the per-view cosines
+    views = [f[:, 16 * k : 16 * (k + 1)] * np.sqrt(3) for k in range(3)]
+    mean_cos = np.mean([v[:50] @ v[50:100].T for v in views], axis=0)
+    assert np.allclose(f[:50] @ f[50:100].T, mean_cos, atol=1e-5)
+    with pytest.raises(ValueError):
+        ModelFeatureSource(model, it["points"], it["normals"], views=0)
 
 
 # Measured on the shared 2-core CPU of the development machine while other jobs ran: about 0.1 s

@@ -30,6 +30,14 @@ def test_prepare_train_resume_and_decompose_with_the_model(tiny_data, tmp_path, 
     assert main([*base, "--steps", "5"]) == 0  # resumes from step 3
     log = read_log(run / "log.csv")
     assert [int(r["step"]) for r in log] == [1, 2, 3, 4, 5]
+    # the same curves in TensorBoard (the dev extra installs it)
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    board = EventAccumulator(str(run / "tensorboard"))
+    board.Reload()
+    scalars = board.Scalars("train/contrastive")
+    assert [e.step for e in scalars] == [1, 2, 3, 4, 5]
+    assert [e.value for e in scalars] == pytest.approx([r["contrastive"] for r in log], rel=1e-5)
     capsys.readouterr()
     out = tmp_path / "hulls.obj"
     args = ["decompose", str(ROOT / "io" / "mug.obj"), "--features", "model", "--model",
@@ -37,6 +45,36 @@ def test_prepare_train_resume_and_decompose_with_the_model(tiny_data, tmp_path, 
     assert main(args) == 0
     summary = json.loads(capsys.readouterr().out)
     assert 1 <= summary["hulls"] <= 12 and out.exists()
+    # in a loop over shapes the network is loaded once, and the results are the same
+    import pointcvx
+    from pointcvx.pipeline import _cached_model
+
+    opts = {"features": "model", "model": str(run / "last.pt"), "n_points": 4000, "threshold": 0.2,
+            "max_hulls": 12}
+    first = pointcvx.decompose(ROOT / "io" / "mug.obj", **opts)
+    hits = _cached_model.cache_info().hits
+    again = pointcvx.decompose(ROOT / "io" / "mug.obj", **opts)
+    assert _cached_model.cache_info().hits == hits + 1
+    assert [h.vertices.tolist() for h in first.hulls] == [h.vertices.tolist() for h in again.hulls]
+
+    # a new run warm-started from those weights: fresh step count, the same weights at step 0
+    import torch
+
+    from pointcvx.model.train import load_checkpoint
+
+    tuned = tmp_path / "tuned"
+    assert main(["train", str(tiny_data), "-o", str(tuned), "--config", "tiny", "--points", "1024",
+                 "--device", "cpu", "--steps", "2", "--init", str(run / "last.pt"), "-q",
+                 "--set", "train.lr=0"]) == 0
+    assert [int(r["step"]) for r in read_log(tuned / "log.csv")] == [1, 2]
+    a, b = load_checkpoint(run / "last.pt")["model"], load_checkpoint(tuned / "last.pt")["model"]
+    assert b.keys() == a.keys() and all(torch.equal(a[k], b[k]) for k in a)  # lr 0: unchanged
+    # weights of another architecture are refused with one line
+    capsys.readouterr()
+    assert main(["train", str(tiny_data), "-o", str(tmp_path / "other"), "--config", "tiny",
+                 "--set", "head.feature_dim=8", "--steps", "1", "--init", str(run / "last.pt"),
+                 "--points", "1024", "--device", "cpu", "-q"]) == EXIT_INPUT
+    assert "do not fit" in capsys.readouterr().err
 
 
 def test_train_and_model_errors(tmp_path, capsys):
@@ -45,6 +83,9 @@ def test_train_and_model_errors(tmp_path, capsys):
     assert main(["train", str(tmp_path), "-o", str(tmp_path / "r"), "--steps", "1",
                  "--config", "huge"]) == EXIT_INPUT
     assert "unknown config" in capsys.readouterr().err
+    assert main(["train", str(tmp_path), "-o", str(tmp_path / "r"), "--steps", "1",
+                 "--init", str(tmp_path / "missing.pt")]) == EXIT_INPUT
+    assert "no such checkpoint" in capsys.readouterr().err
     bogus = tmp_path / "bogus.pt"
     bogus.write_bytes(b"not a checkpoint")
     args = ["decompose", str(ROOT / "io" / "mug.obj"), "--features", "model", "--model", str(bogus),

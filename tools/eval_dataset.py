@@ -1,13 +1,17 @@
 """Decompose every shape of a folder with pointcvx and score it with the paper's protocol.
 
     python tools/eval_dataset.py ../shared/data/vhacd61 -o docs/results/vhacd61.csv \
-        [--threshold 0.1] [--max-hulls 64] [--jobs 2] [--limit N] [--split auto]
+        [--threshold 0.1] [--max-hulls 64] [--jobs 2] [--limit N] [--split auto] \
+        [--features optimize|model] [--model CKPT]
 
 Each shape runs in its own worker process (``--jobs`` at a time). For each shape: the time of
 ``pointcvx.decompose`` (features + splitting + merge + hulls) and the metrics of
 ``pointcvx.metrics.evaluate`` (hull count, concavity, Chamfer reconstruction, volume IoU,
-coverage) on the shape normalised to [-1, 1]^3. Writes one CSV row per shape and prints a
-markdown summary (means and medians).
+coverage) on the shape normalised to [-1, 1]^3. Every format pointcvx reads is taken: meshes
+and CAD parts are scored against their surface; splats and point clouds, which have no closed
+surface, with ``pointcvx.metrics.evaluate_points`` (reconstruction and coverage against the
+loaded points; concavity is then the decomposer's own estimate, ``internal_max``). Writes one
+CSV row per shape and prints a markdown summary (means and medians).
 """
 
 from __future__ import annotations
@@ -20,7 +24,7 @@ import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
-MESH_EXT = {".off", ".obj", ".ply", ".stl", ".glb", ".gltf"}
+SKIP_SUFFIXES = {".md", ".txt", ".json", ".csv", ".urdf", ".mtl", ".png", ".jpg"}
 
 
 def run_one(path: str, opts: dict) -> dict:
@@ -28,7 +32,7 @@ def run_one(path: str, opts: dict) -> dict:
 
     torch.set_num_threads(1)
     import pointcvx
-    from pointcvx.metrics import evaluate
+    from pointcvx.metrics import evaluate, evaluate_points
 
     row = {"shape": Path(path).stem}
     try:
@@ -37,12 +41,20 @@ def run_one(path: str, opts: dict) -> dict:
         row["seconds"] = round(time.perf_counter() - t, 3)
         for key in ("features", "split", "merge", "solid"):
             row[f"t_{key}"] = round(result.timings.get(key, 0.0), 3)
-        mesh = pointcvx.io.mesh.read_mesh(path, pointcvx.detect(path).format)
-        ev = evaluate(mesh, [h.vertices for h in result.hulls])
-        row.update(hulls=ev["hulls"], concavity=round(ev["concavity"], 5),
-                   reconstruction=round(ev["reconstruction"], 5), iou=round(ev["iou"], 4),
-                   coverage=round(ev["coverage"], 4), internal_max=round(result.max_concavity, 5),
-                   eval_seconds=round(ev["seconds"], 2))
+        hulls = [h.vertices for h in result.hulls]
+        cloud = pointcvx.load(path, normalize=False, seed=opts.get("seed", 0))
+        row["modality"] = cloud.modality
+        if cloud.mesh is not None:
+            fmt = pointcvx.detect(path).format
+            mesh = pointcvx.io.mesh.read_mesh(path, fmt) if cloud.modality == "mesh" else cloud.mesh
+            ev = evaluate(mesh, hulls)
+            row.update(concavity=round(ev["concavity"], 5), iou=round(ev["iou"], 4),
+                       eval_seconds=round(ev["seconds"], 2))
+        else:
+            ev = evaluate_points(cloud.points, hulls)
+            row.update(concavity=round(result.max_concavity, 5), outside_max=round(ev["outside_max"], 4))
+        row.update(hulls=ev["hulls"], reconstruction=round(ev["reconstruction"], 5),
+                   coverage=round(ev["coverage"], 4), internal_max=round(result.max_concavity, 5))
     except Exception as exc:  # noqa: BLE001 - a benchmark records failures and goes on
         row["error"] = f"{type(exc).__name__}: {exc}"
     return row
@@ -53,8 +65,8 @@ def summarize(rows: list[dict]) -> str:
 
     ok = [r for r in rows if "error" not in r]
     lines = ["| metric | mean | median |", "|---|---|---|"]
-    for key in ("hulls", "concavity", "reconstruction", "iou", "coverage", "seconds"):
-        vals = np.array([r[key] for r in ok], dtype=float)
+    for key in ("hulls", "concavity", "reconstruction", "iou", "coverage", "t_features", "seconds"):
+        vals = np.array([r[key] for r in ok if key in r], dtype=float)
         if len(vals):
             lines.append(f"| {key} | {vals.mean():.4f} | {np.median(vals):.4f} |")
     lines.append(f"\n{len(ok)} of {len(rows)} shapes decomposed without error.")
@@ -71,16 +83,18 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--blend", type=float, default=1.0)
     ap.add_argument("--features", default="optimize")
     ap.add_argument("--model", default=None, help="checkpoint for --features model")
+    ap.add_argument("--views", type=int, default=1, help="model views (test-time ensemble)")
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--limit", type=int, default=None)
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args(argv)
-    files = sorted(str(p) for p in Path(args.folder).iterdir() if p.suffix.lower() in MESH_EXT)
+    files = sorted(str(p) for p in Path(args.folder).iterdir()
+                   if p.is_file() and p.suffix.lower() not in SKIP_SUFFIXES and not p.name.startswith("."))
     if args.limit:
         files = files[: args.limit]
     opts = {"threshold": args.threshold, "max_hulls": args.max_hulls, "split": args.split,
             "blend": args.blend,
-            "features": args.features, "model": args.model, "seed": args.seed}
+            "features": args.features, "model": args.model, "views": args.views, "seed": args.seed}
     rows = []
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
         futures = {pool.submit(run_one, f, opts): f for f in files}

@@ -224,6 +224,18 @@ def load_checkpoint(path: str | os.PathLike, map_location: str | torch.device = 
     return state
 
 
+def export_weights(checkpoint: str | os.PathLike, out: str | os.PathLike,
+                   extra: dict[str, Any] | None = None) -> Path:
+    """Write the inference part of a training checkpoint (weights, config, step; no optimiser or
+    scheduler state, about a third of the size) to ``out``, atomically; ``extra`` (e.g. how it
+    was trained) is stored alongside and merged over the checkpoint's own."""
+    state = load_checkpoint(checkpoint)
+    model = FeatureNet(state["config"])
+    model.load_state_dict(state["model"])
+    return save_checkpoint(out, model, None, state["step"], state["config"],
+                           extra={**state.get("extra", {}), **(extra or {})})
+
+
 # -------------------------------------------------------------------------- schedule, sharding
 def cosine_lambda(total_steps: int, warmup_steps: int = 0, min_ratio: float = 0.0):
     """LR multiplier: linear warm-up, then cosine decay from 1 to ``min_ratio`` at ``total_steps``."""
@@ -276,7 +288,8 @@ def distributed_context(device: str | torch.device | None) -> tuple[int, int, to
 # -------------------------------------------------------------------------- the loop
 def train(config: ModelConfig, dataset, steps: int, out_dir: str | os.PathLike, *, resume: bool = True,
           log_csv: bool = True, device: str | torch.device | None = None,
-          total_steps: int | None = None) -> FeatureNet:
+          total_steps: int | None = None, init: str | os.PathLike | None = None,
+          progress=None) -> FeatureNet:
     """Train (or continue training) a :class:`FeatureNet` up to global step ``steps``.
 
     Parameters
@@ -288,6 +301,9 @@ def train(config: ModelConfig, dataset, steps: int, out_dir: str | os.PathLike, 
         and ``log.csv`` go here.
     resume : continue from ``out_dir/last.pt`` if it exists.
     total_steps : length of the cosine schedule (default ``steps``).
+    init : checkpoint whose weights start a new run (fine-tuning); the optimiser, schedule and
+        step start fresh. Ignored when the run resumes from its own ``last.pt``.
+    progress : optional ``callable(step, steps, losses)`` called on rank 0 after every step.
 
     Returns
     -------
@@ -311,6 +327,14 @@ def train(config: ModelConfig, dataset, steps: int, out_dir: str | os.PathLike, 
             scheduler.load_state_dict(state["scheduler"])
         step = state["step"]
         log.info("resumed from %s at step %d", last, step)
+    elif init is not None:
+        state = load_checkpoint(init, map_location=device)
+        try:
+            model.load_state_dict(state["model"])
+        except RuntimeError:
+            raise ValueError(f"{init}: its weights do not fit this network configuration "
+                             f"(it was trained as {state['config'].name!r})") from None
+        log.info("initialised the weights from %s (step %d there)", init, state["step"])
     ddp = world > 1
     if ddp:
         from torch.nn.parallel import DistributedDataParallel
@@ -321,8 +345,9 @@ def train(config: ModelConfig, dataset, steps: int, out_dir: str | os.PathLike, 
         net = model
     if rank == 0:
         out.mkdir(parents=True, exist_ok=True)
-    writer, fh = None, None
+    writer, fh, board = None, None, None
     if rank == 0 and log_csv:
+        board = _tensorboard(out / "tensorboard", step)
         path = out / "log.csv"
         new = not path.exists() or step == 0
         if not new:
@@ -348,8 +373,14 @@ def train(config: ModelConfig, dataset, steps: int, out_dir: str | os.PathLike, 
                     writer.writerow([step, losses["loss"], losses["contrastive"], losses["sdf"], lr,
                                      round(time.perf_counter() - t0, 4)])
                     fh.flush()
+                if board is not None and (step % tc.log_every == 0 or step == steps):
+                    for key in ("loss", "contrastive", "sdf"):
+                        board.add_scalar(f"train/{key}", losses[key], step)
+                    board.add_scalar("train/lr", lr, step)
                 log.info("step %d loss %.4f (contrastive %.4f, sdf %.5f) lr %.3g", step, losses["loss"],
                          losses["contrastive"], losses["sdf"], lr)
+                if progress is not None:
+                    progress(step, steps, losses)
                 if step % tc.checkpoint_every == 0 or step == steps:
                     save_checkpoint(last, model, optimizer, step, config, scheduler)
                     if step % tc.checkpoint_every == 0:
@@ -358,9 +389,22 @@ def train(config: ModelConfig, dataset, steps: int, out_dir: str | os.PathLike, 
     finally:
         if fh is not None:
             fh.close()
+        if board is not None:
+            board.close()
     if ddp:
         dist.barrier()
     return model
+
+
+def _tensorboard(folder: Path, step: int):
+    """A TensorBoard ``SummaryWriter`` on ``folder`` when the ``tensorboard`` package is installed
+    (a resumed run purges events past ``step``), else None: the CSV log is always written."""
+    try:
+        from torch.utils.tensorboard import SummaryWriter
+    except ImportError:
+        log.debug("tensorboard is not installed: CSV log only")
+        return None
+    return SummaryWriter(str(folder), purge_step=step + 1 if step else None)
 
 
 def _mean_across_ranks(losses: dict[str, float], device: torch.device) -> dict[str, float]:

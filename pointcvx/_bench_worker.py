@@ -1,0 +1,227 @@
+"""One benchmark run in its own process: ``python -m pointcvx._bench_worker JOB.json``.
+
+``pointcvx bench`` (:mod:`pointcvx.bench`) starts this module once per (method, shape, setting)
+so that every run has a fresh interpreter, its own wall-clock timeout and its own peak memory.
+The job file is JSON with:
+
+``method``
+    ``pointcvx``, ``coacd``, ``vhacd`` (V-HACD 2.x through ``pybullet.vhacd``) or ``vhacdx``.
+``input``
+    The file the method reads: the normalised mesh as OBJ (every method) or, for pointcvx on a
+    splat or a scan, the original file.
+``arrays``
+    ``.npz`` with ``vertices`` (n, 3) float and ``faces`` (m, 3) int of that OBJ (read by the
+    in-memory baselines, so that parsing the OBJ is not timed), or null.
+``params``
+    Keyword arguments of the method (see ``_RUNNERS``).
+``hulls``
+    Where to write the hulls: an OBJ with one ``o hull_NNN`` object per hull.
+``points``
+    For pointcvx only, optional: where to save the decomposed cloud in input units, (n, 3)
+    float as ``.npy`` (the reference of the point-based metrics for splats and scans).
+``result``
+    Where to write the result JSON: ``ok``, ``hulls`` (count), ``seconds`` (the method's call
+    only: no interpreter start, no imports, no file writing), ``peak_kb`` (peak resident memory
+    of this process in KiB, see :func:`peak_kb`) and ``error`` (one line, when ``ok`` is false).
+
+The method's own output on stdout and stderr (V-HACD and CoACD are chatty) goes wherever the
+parent sent it; the result travels only through the result file.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import resource
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def _load_arrays(job: dict) -> tuple[np.ndarray, np.ndarray]:
+    with np.load(job["arrays"]) as data:
+        return np.asarray(data["vertices"], dtype=np.float64), np.asarray(data["faces"], dtype=np.int64)
+
+
+def write_obj(path: str | os.PathLike, hulls: list[tuple[np.ndarray, np.ndarray]]) -> int:
+    """Write ``hulls`` ((k, 3) float vertices, (f, 3) int faces) as an OBJ with one ``o hull_NNN``
+    object per hull, skipping hulls without a face; return how many were written."""
+    lines = ["# pointcvx bench hulls"]
+    offset, written = 1, 0
+    for vertices, faces in hulls:
+        v = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
+        f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+        if len(f) == 0 or len(v) == 0:
+            continue
+        lines.append(f"o hull_{written:03d}")
+        lines.extend(f"v {x:.9g} {y:.9g} {z:.9g}" for x, y, z in v)
+        lines.extend(f"f {a + offset} {b + offset} {c + offset}" for a, b, c in f)
+        offset += len(v)
+        written += 1
+    Path(path).write_text("\n".join(lines) + "\n")
+    return written
+
+
+def read_obj_objects(path: str | os.PathLike) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Read an OBJ whose ``o`` objects are hulls (V-HACD's output): a list of (k, 3) float
+    vertices and (f, 3) int faces (0-based, local to each object; polygons are fanned)."""
+    verts: list[list[float]] = []
+    objects: list[list[list[int]]] = [[]]
+    with open(path, errors="replace") as f:
+        for line in f:
+            parts = line.split()
+            if not parts:
+                continue
+            if parts[0] == "v":
+                verts.append([float(x) for x in parts[1:4]])
+            elif parts[0] == "o":
+                objects.append([])
+            elif parts[0] == "f":
+                idx = [int(p.split("/")[0]) for p in parts[1:]]
+                idx = [i - 1 if i > 0 else len(verts) + i for i in idx]
+                objects[-1].extend([idx[0], idx[k], idx[k + 1]] for k in range(1, len(idx) - 1))
+    vertices = np.asarray(verts, dtype=np.float64).reshape(-1, 3)
+    out = []
+    for faces in objects:
+        if not faces:
+            continue
+        f = np.asarray(faces, dtype=np.int64)
+        used, local = np.unique(f, return_inverse=True)
+        out.append((vertices[used], local.reshape(-1, 3)))
+    return out
+
+
+def peak_kb() -> int:
+    """Peak resident memory of this process so far, in KiB.
+
+    On Linux this is ``VmHWM`` of ``/proc/self/status``: unlike ``ru_maxrss``, which a process
+    started by fork + exec inherits from its parent (the benchmark's own, often larger, peak),
+    it belongs to this program alone. Elsewhere: ``ru_maxrss`` (bytes on macOS, KiB otherwise).
+    """
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1])
+    except (OSError, ValueError, IndexError):
+        pass
+    rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return rss // 1024 if sys.platform == "darwin" else rss
+
+
+# ------------------------------------------------------------------------------------ methods
+def _warm_pointcvx(params: dict) -> None:
+    """Import what :func:`pointcvx.decompose` imports lazily, so the timed call does not pay it."""
+    import pointcvx.io.mesh  # noqa: F401
+    import pointcvx.metrics  # noqa: F401
+    import pointcvx.recursive  # noqa: F401
+    import pointcvx.watertight  # noqa: F401
+
+    if params.get("features") == "model":
+        import pointcvx.model.source  # noqa: F401
+    else:
+        import pointcvx.features.field  # noqa: F401
+
+
+def _run_pointcvx(job: dict, params: dict) -> tuple[list, float]:
+    from pointcvx.pipeline import decompose
+
+    _warm_pointcvx(params)
+    t0 = time.perf_counter()
+    result = decompose(job["input"], **params)
+    seconds = time.perf_counter() - t0
+    if job.get("points"):
+        np.save(job["points"], result.cloud.in_input_units().points)
+    return [(h.vertices, h.faces) for h in result.hulls], seconds
+
+
+def _run_coacd(job: dict, params: dict) -> tuple[list, float]:
+    import coacd
+
+    coacd.set_log_level("error")
+    vertices, faces = _load_arrays(job)
+    t0 = time.perf_counter()
+    parts = coacd.run_coacd(coacd.Mesh(vertices, faces.astype(np.int32)), **params)
+    seconds = time.perf_counter() - t0
+    return [(v, f) for v, f in parts], seconds
+
+
+def _run_vhacd(job: dict, params: dict) -> tuple[list, float]:
+    import pybullet
+
+    out = str(Path(job["hulls"]).with_suffix(".vhacd.obj"))
+    log_txt = str(Path(job["hulls"]).with_suffix(".vhacd.log"))
+    t0 = time.perf_counter()
+    pybullet.vhacd(job["input"], out, log_txt, **params)
+    seconds = time.perf_counter() - t0
+    if not Path(out).is_file():
+        raise RuntimeError("pybullet.vhacd wrote no output")
+    hulls = read_obj_objects(out)
+    for p in (out, log_txt):
+        Path(p).unlink(missing_ok=True)
+    return hulls, seconds
+
+
+def _run_vhacdx(job: dict, params: dict) -> tuple[list, float]:
+    import vhacdx
+
+    vertices, faces = _load_arrays(job)
+    t0 = time.perf_counter()
+    parts = vhacdx.compute_vhacd(vertices, faces.astype(np.uint32), **params)
+    seconds = time.perf_counter() - t0
+    return [(v, f) for v, f in parts], seconds
+
+
+_RUNNERS = {"pointcvx": _run_pointcvx, "coacd": _run_coacd, "vhacd": _run_vhacd, "vhacdx": _run_vhacdx}
+
+
+def _limit_threads(threads: int | None) -> None:
+    if not threads:
+        return
+    import torch
+    from threadpoolctl import threadpool_limits
+
+    threadpool_limits(int(threads))
+    torch.set_num_threads(int(threads))
+
+
+def run_job(job: dict) -> dict:
+    """Run ``job`` (see the module docstring) and return its result dict (also written to
+    ``job["result"]``)."""
+    result: dict = {"ok": False, "method": job.get("method")}
+    try:
+        runner = _RUNNERS[job["method"]]
+        if job["method"] == "pointcvx":
+            _limit_threads(job.get("threads"))
+        hulls, seconds = runner(job, dict(job.get("params") or {}))
+        result["seconds"] = seconds
+        result["peak_kb"] = peak_kb()
+        count = write_obj(job["hulls"], hulls)
+        if count == 0:
+            raise RuntimeError(f"{job['method']} returned no hull")
+        result.update(ok=True, hulls=count)
+    # A decomposition library can fail in any way on a hard shape; the benchmark records the
+    # failure as an error row and goes on with the next run.
+    except Exception as exc:  # noqa: BLE001
+        first = str(exc).splitlines()[0] if str(exc) else ""
+        result["error"] = f"{type(exc).__name__}: {first}"[:300]
+    result.setdefault("peak_kb", peak_kb())
+    tmp = Path(job["result"]).with_suffix(".part")
+    tmp.write_text(json.dumps(result))
+    os.replace(tmp, job["result"])
+    return result
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = sys.argv[1:] if argv is None else argv
+    if len(args) != 1:
+        print("usage: python -m pointcvx._bench_worker JOB.json", file=sys.stderr)
+        return 2
+    job = json.loads(Path(args[0]).read_text())
+    return 0 if run_job(job)["ok"] else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,246 @@
+"""``pointcvx bench``: real runs of pointcvx, CoACD and both V-HACDs on a tiny L-shaped block.
+
+One small benchmark (module fixture) is shared by most tests; every method runs for real in its
+own worker process, with small settings (3000 points, 2000 metric samples, low V-HACD
+resolution) so that the whole file takes well under a minute.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import math
+
+import numpy as np
+import pytest
+import trimesh
+from shapes import l_block
+
+from pointcvx import bench
+from pointcvx.cloud import Normalization
+from pointcvx.errors import InputError
+from pointcvx.metrics import evaluate, load_hulls
+
+FAST = ["-n", "3000", "--eval-samples", "2000", "--vhacd-resolution", "20000", "--search-runs", "4",
+        "-q"]
+METHODS = "pointcvx,coacd,vhacd,vhacdx"
+
+
+def _args(argv: list[str]) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(prog="pointcvx")
+    bench.add_parser(parser.add_subparsers(dest="command"))
+    return parser.parse_args(["bench", *argv])
+
+
+def _rows(out) -> list[dict]:
+    with open(out / "results.csv", newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def _one(rows: list[dict], method: str, setting: str) -> dict:
+    found = [r for r in rows if r["method"] == method and r["setting"] == setting]
+    assert len(found) == 1, (method, setting, found)
+    return found[0]
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    """A benchmark of every method on one L block (plus a README that must be ignored)."""
+    ds = tmp_path_factory.mktemp("blocks")
+    l_block().export(ds / "l_block.obj")
+    (ds / "README.md").write_text("not a shape\n")
+    out = tmp_path_factory.mktemp("bench") / "out"
+    argv = [str(ds), "-o", str(out), "--methods", METHODS, *FAST]
+    assert bench.main(argv) == 0
+    return {"ds": ds, "out": out, "argv": argv, "rows": _rows(out)}
+
+
+def test_every_method_gives_a_row_with_finite_metrics(run):
+    rows = run["rows"]
+    got = sorted((r["method"], r["setting"]) for r in rows)
+    assert got == sorted([("pointcvx", "fixed"), ("coacd", "fixed"), ("coacd", "matched"),
+                          ("vhacd", "fixed"), ("vhacd", "matched"), ("vhacdx", "fixed"),
+                          ("vhacdx", "matched")])
+    for r in rows:
+        assert r["error"] == "", r
+        assert (r["dataset"], r["category"], r["shape"], r["modality"]) == (
+            run["ds"].name, run["ds"].name, "l_block", "mesh")
+        assert int(r["hulls"]) >= 1
+        for key in ("concavity", "reconstruction", "iou", "coverage", "seconds", "peak_mb"):
+            assert math.isfinite(float(r[key])), (r["method"], key)
+        assert 0.0 <= float(r["iou"]) <= 1.0 and 0.0 <= float(r["coverage"]) <= 1.0
+        assert 0.0 < float(r["seconds"]) < 120.0
+        # the worker's own peak (interpreter + library + run), not the parent's inherited one
+        assert 10.0 < float(r["peak_mb"]) < 8000.0
+    # the paper's fixed settings, recorded in the rows
+    assert float(_one(rows, "coacd", "fixed")["param"]) == pytest.approx(0.1)
+    assert _one(rows, "vhacd", "fixed")["param_name"] == "concavity"
+    assert float(_one(rows, "pointcvx", "fixed")["threshold"]) == pytest.approx(0.1)
+    # pointcvx's torch stack costs far more memory than CoACD's bare library in its own process;
+    # a worker's peak is its own (about 40 MB here), not the larger one of the test process
+    coacd_mb = float(_one(rows, "coacd", "fixed")["peak_mb"])
+    assert coacd_mb < 150.0
+    assert float(_one(rows, "pointcvx", "fixed")["peak_mb"]) > coacd_mb
+
+
+def test_hull_files_exist_load_and_reproduce_the_metrics(run):
+    out = run["out"]
+    rows = run["rows"]
+    for r in rows:
+        path = out / r["hull_file"]
+        assert path == out / "hulls" / r["method"] / r["setting"] / "l_block.obj"
+        hulls = load_hulls(path)
+        assert len(hulls) == int(r["hulls"])
+        # every method decomposed the same mesh normalised to [-1, 1]^3
+        v = np.concatenate(hulls)
+        assert np.abs(v).max() < 1.2, r["method"]
+    # the row's metrics are evaluate() of that file against the normalised block
+    mesh = l_block()
+    norm = Normalization.to_unit_cube(mesh.vertices)
+    unit = trimesh.Trimesh(norm.forward(mesh.vertices), mesh.faces, process=False)
+    r = _one(rows, "pointcvx", "fixed")
+    ev = evaluate(unit, load_hulls(out / r["hull_file"]), n_samples=2000, n_volume_samples=10000, seed=0)
+    assert ev["hulls"] == int(r["hulls"])
+    assert ev["concavity"] == pytest.approx(float(r["concavity"]), rel=1e-4, abs=1e-6)
+    assert ev["reconstruction"] == pytest.approx(float(r["reconstruction"]), rel=1e-4)
+
+
+def test_matched_granularity_is_at_least_as_close_as_fixed(run):
+    rows = run["rows"]
+    h = int(_one(rows, "pointcvx", "fixed")["hulls"])
+    fixed, matched = _one(rows, "coacd", "fixed"), _one(rows, "coacd", "matched")
+    assert abs(int(matched["hulls"]) - h) <= abs(int(fixed["hulls"]) - h)
+    assert int(matched["target_hulls"]) == h
+    assert 1 <= int(matched["search_runs"]) <= 4
+    assert 0.01 <= float(matched["param"]) <= 1.0
+    vfixed, vmatched = _one(rows, "vhacd", "fixed"), _one(rows, "vhacd", "matched")
+    assert abs(int(vmatched["hulls"]) - h) <= abs(int(vfixed["hulls"]) - h)
+    assert 1e-5 <= float(vmatched["param"]) <= 0.1
+    # vhacdx takes the hull count directly: one run, at most H hulls
+    x = _one(rows, "vhacdx", "matched")
+    assert (int(float(x["param"])), int(x["search_runs"])) == (h, 1)
+    assert 1 <= int(x["hulls"]) <= h
+    assert int(_one(rows, "vhacdx", "fixed")["param"]) == 64
+
+
+def test_summary_has_stats_and_the_win_loss_table(run):
+    text = (run["out"] / "summary.md").read_text()
+    assert f"## Dataset `{run['ds'].name}` (1 shapes)" in text
+    assert "pointcvx against each baseline at matched granularity" in text
+    assert "median seconds of the baseline / median seconds of pointcvx" in text
+    for b in ("coacd", "vhacd", "vhacdx"):
+        c = bench.win_tie_loss(run["rows"], b, "concavity")
+        rec = bench.win_tie_loss(run["rows"], b, "reconstruction")
+        assert sum(c) == 1 and sum(rec) == 1  # one shape, one pair
+        line = f"| {b} | 0.1 | 1 | {c[0]} / {c[1]} / {c[2]} | {rec[0]} / {rec[1]} / {rec[2]} |"
+        assert line in text
+    # hand-check one pairing against the rows (lower is better)
+    ours = float(_one(run["rows"], "pointcvx", "fixed")["concavity"])
+    theirs = float(_one(run["rows"], "coacd", "matched")["concavity"])
+    if abs(ours - theirs) <= bench.TIE_RTOL * max(ours, theirs):
+        expect = (0, 1, 0)
+    else:
+        expect = (1, 0, 0) if ours < theirs else (0, 0, 1)
+    assert bench.win_tie_loss(run["rows"], "coacd", "concavity") == expect
+    png = run["out"] / "granularity.png"
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert not list(run["out"].glob(".bench-*"))  # temporary folders are gone
+
+
+def test_timeout_is_an_error_row_and_non_meshes_skip_the_baselines(tmp_path):
+    ds = tmp_path / "mixed"
+    ds.mkdir()
+    l_block().export(ds / "l_block.obj")
+    rng = np.random.default_rng(0)
+    p = rng.normal(size=(400, 3))
+    np.savetxt(ds / "ball.xyz", p / np.linalg.norm(p, axis=1, keepdims=True))
+    out = tmp_path / "out"
+    # V-HACD at 8 million voxels takes seconds: killed after 1 s; two shapes at once
+    argv = [str(ds), "-o", str(out), "--methods", "vhacd", "--no-match", "--timeout", "1",
+            "--vhacd-resolution", "8000000", "--jobs", "2", "-q"]
+    assert bench.main(argv) == 0
+    rows = {r["shape"]: r for r in _rows(out)}
+    assert set(rows) == {"l_block", "ball"}
+    slow = rows["l_block"]
+    assert slow["error"] == "timeout after 1 s"
+    assert 1.0 <= float(slow["seconds"]) < 30.0
+    assert slow["hulls"] == "" and slow["hull_file"] == ""
+    assert rows["ball"]["error"] == "skipped: needs a mesh"
+    assert rows["ball"]["modality"] == "scan"
+    text = (out / "summary.md").read_text()
+    assert "| vhacd | fixed | – | 0 | 1 | 1 |" in text
+
+
+def test_missing_or_bad_input_raises_input_error(tmp_path, monkeypatch):
+    with pytest.raises(InputError, match="no such file or folder"):
+        bench.main([str(tmp_path / "nowhere"), "-o", str(tmp_path / "out"), "-q"])
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    (empty / "README.md").write_text("x")
+    with pytest.raises(InputError, match="no shape file"):
+        bench.main([str(empty), "-o", str(tmp_path / "out"), "-q"])
+    with pytest.raises(InputError, match="unknown method 'vhacd3'"):
+        bench.main([str(empty), "-o", str(tmp_path / "out"), "--methods", "pointcvx,vhacd3", "-q"])
+    monkeypatch.setitem(bench._PACKAGES, "coacd", "coacd_is_not_installed")
+    with pytest.raises(InputError, match=r"pip install 'pointcvx\[baselines\]'"):
+        bench.main([str(empty), "-o", str(tmp_path / "out"), "--methods", "coacd", "-q"])
+    assert not (tmp_path / "out").exists()
+
+
+def test_parser_defaults_and_options():
+    args = _args(["a", "b", "-o", "out"])
+    assert args.func is bench.cmd_bench
+    opts = bench.options_from_args(args)
+    assert (args.datasets, args.outdir, args.jobs, args.limit) == (["a", "b"], "out", 1, None)
+    assert (opts.methods, opts.thresholds, opts.match, opts.timeout) == (
+        ("pointcvx", "coacd", "vhacd"), (0.1,), True, 600.0)
+    opts = bench.options_from_args(_args(["a", "-o", "o", "--methods", "PointCVX, vhacdx",
+                                          "--thresholds", "0.05,0.2", "--no-match", "--timeout", "5",
+                                          "--features", "model"]))
+    assert (opts.methods, opts.thresholds, opts.match, opts.timeout, opts.features) == (
+        ("pointcvx", "vhacdx"), (0.05, 0.2), False, 5.0, "model")
+
+
+def test_search_bisects_to_the_closest_count():
+    calls = []
+
+    def fake_run(x: float):  # a synthetic count, falling as the parameter grows
+        calls.append(x)
+        return bench._Run("coacd", x, True, hulls=int(round(0.5 / x)))
+
+    reused = bench._Run("coacd", 0.1, True, hulls=5)
+    best, tried = bench.search_parameter(fake_run, 0.01, 1.0, 10, 6, reuse=[reused])
+    assert best.hulls == 10 and tried[-1] is best
+    assert tried[0] is reused and 0.1 not in calls  # the midpoint's run was reused, not rerun
+    assert len(tried) <= 6
+    # a target out of reach: the closest count at the edge, never more than max_runs probes
+    best, tried = bench.search_parameter(fake_run, 0.01, 1.0, 500, 3)
+    assert len(tried) == 3 and best.hulls == max(r.hulls for r in tried)
+    # a failing probe moves the search to coarser settings
+    def failing(x: float):
+        if x < 0.05:
+            return bench._Run("coacd", x, False, error="timeout after 1 s")
+        return fake_run(x)
+
+    best, tried = bench.search_parameter(failing, 0.01, 1.0, 10, 4)
+    assert best is not None and best.param >= 0.05 and not tried[1].ok
+
+
+def test_rerun_resumes_and_redoes_only_missing_rows(run):
+    out = run["out"]
+    before = (out / "results.csv").read_text()
+    stamp = {p: p.stat().st_mtime_ns for p in (out / "hulls").rglob("*.obj")}
+    report = bench.run_bench([run["ds"]], out, bench.options_from_args(_args(run["argv"])))
+    assert report.new_rows == 0
+    assert (out / "results.csv").read_text() == before
+    assert {p: p.stat().st_mtime_ns for p in (out / "hulls").rglob("*.obj")} == stamp
+    # drop one row: only that one runs again
+    rows = [r for r in run["rows"] if (r["method"], r["setting"]) != ("vhacdx", "fixed")]
+    bench.write_results(out / "results.csv", rows)
+    report = bench.run_bench([run["ds"]], out, bench.options_from_args(_args(run["argv"])))
+    assert report.new_rows == 1
+    again = _rows(out)
+    assert len(again) == len(run["rows"])
+    assert _one(again, "vhacdx", "fixed")["error"] == ""
+    changed = [p for p, t in stamp.items() if p.stat().st_mtime_ns != t]
+    assert changed == [out / "hulls" / "vhacdx" / "fixed" / "l_block.obj"]
