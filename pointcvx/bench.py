@@ -61,6 +61,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import InputError, OutputError, PointcvxError
+from .progress import LazyBar
 
 log = logging.getLogger(__name__)
 
@@ -1105,27 +1106,13 @@ def _final_summary(report: BenchReport) -> str:
 def cmd_bench(args: argparse.Namespace) -> int:
     """Run ``pointcvx bench``; 0 when every row ran (errors inside rows included)."""
     opts = options_from_args(args)
-    bar = None
-
-    def progress(done: int, total: int, shape: str) -> None:
-        nonlocal bar
-        if args.quiet:
-            return
-        if bar is None:
-            from tqdm import tqdm
-
-            bar = tqdm(total=total, desc="bench", unit="shape", file=sys.stderr, leave=False,
-                       dynamic_ncols=True)
-        bar.update(max(0, done - bar.n))
-        if shape:
-            bar.set_postfix_str(shape, refresh=False)
-
+    bar = LazyBar(not args.quiet, "bench", "shape")
     try:
         report = run_bench(args.datasets, args.outdir, opts, limit=args.limit, jobs=args.jobs,
-                           overwrite=args.overwrite, progress=progress)
+                           overwrite=args.overwrite,
+                           progress=lambda done, total, shape: bar.set(done, total, shape))
     finally:
-        if bar is not None:
-            bar.close()
+        bar.close()
     if not args.quiet:
         print(_final_summary(report))
     return 0

@@ -17,6 +17,7 @@ import numpy as np
 
 from . import __version__
 from .errors import OutputError, PointcvxError
+from .progress import LazyBar
 
 log = logging.getLogger("pointcvx")
 
@@ -121,6 +122,9 @@ def build_parser() -> argparse.ArgumentParser:
                      help="optimise a feature field for this shape, or use the bundled model")
     dec.add_argument("--model", metavar="CKPT",
                      help="feed-forward model checkpoint for --features model (from `pointcvx train`)")
+    dec.add_argument("--views", type=int, default=1, metavar="V",
+                     help="with --features model: encode the shape in V orientations and use the "
+                     "concatenated features (a test-time ensemble; default 1)")
     dec.add_argument("--split", choices=["auto", "kmeans", "ward"], default="auto",
                      help="how a part is cut in two (auto: k-means on features + xyz)")
     dec.add_argument("--no-merge", action="store_true", help="skip the merge pass")
@@ -208,23 +212,16 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 class _Bars:
-    """tqdm progress bars on stderr, one per pipeline stage."""
+    """Progress bars on stderr, one per pipeline stage (``progress(stage, done, total)``)."""
 
     def __init__(self, enabled: bool):
         self.enabled = enabled
-        self.bars: dict = {}
+        self.bars: dict[str, LazyBar] = {}
 
     def __call__(self, stage: str, done: int, total: int) -> None:
-        if not self.enabled:
-            return
-        from tqdm import tqdm
-
-        bar = self.bars.get(stage)
-        if bar is None:
-            unit = "step" if stage == "features" else "hull"
-            bar = self.bars[stage] = tqdm(total=total, desc=stage, unit=unit, file=sys.stderr,
-                                          leave=False, dynamic_ncols=True)
-        bar.update(max(0, min(done, total) - bar.n))
+        if stage not in self.bars:
+            self.bars[stage] = LazyBar(self.enabled, stage, "step" if stage == "features" else "hull")
+        self.bars[stage].set(done, total)
 
     def close(self) -> None:
         for bar in self.bars.values():
@@ -250,7 +247,8 @@ def cmd_decompose(args: argparse.Namespace) -> int:
     try:
         result = decompose(
             args.input, threshold=args.threshold, max_hulls=args.max_hulls,
-            features=args.features, model=args.model, merge=not args.no_merge, split=args.split,
+            features=args.features, model=args.model, views=args.views, merge=not args.no_merge,
+            split=args.split,
             n_points=args.points, seed=args.seed, progress=bars, **load_kwargs,
         )
     finally:
@@ -314,28 +312,15 @@ def cmd_train(args: argparse.Namespace) -> int:
         raise InputError(f"{data}: no prepared shapes (run `pointcvx prepare {data}` first)")
     if args.no_resume and (Path(args.out) / "last.pt").exists():
         (Path(args.out) / "last.pt").unlink()
-    bar = None
-
-    def progress(step: int, steps: int, losses: dict) -> None:
-        nonlocal bar
-        if args.quiet:
-            return
-        if bar is None:
-            from tqdm import tqdm
-
-            bar = tqdm(total=steps, initial=step - 1, desc="train", unit="step", file=sys.stderr,
-                       dynamic_ncols=True)
-        bar.update(1)
-        bar.set_postfix(loss=f"{losses['loss']:.3f}", refresh=False)
-
+    bar = LazyBar(not args.quiet, "train", "step", leave=True)
     try:
         train(config, dataset, args.steps, args.out, resume=not args.no_resume, device=args.device,
-              init=args.init, progress=progress, total_steps=args.schedule_steps)
+              init=args.init, total_steps=args.schedule_steps,
+              progress=lambda step, steps, losses: bar.set(step, steps, f"loss {losses['loss']:.3f}"))
     except ValueError as exc:
         raise InputError(str(exc)) from None
     finally:
-        if bar is not None:
-            bar.close()
+        bar.close()
     if not args.quiet:
         print(f"trained to step {args.steps}: {Path(args.out) / 'last.pt'}")
     return 0

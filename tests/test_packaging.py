@@ -9,6 +9,7 @@ import site
 import subprocess
 import sys
 import venv
+from pathlib import Path
 
 from conftest import ROOT
 
@@ -60,3 +61,11 @@ def test_fresh_venv_install_runs_the_cli(tmp_path):
     assert res.returncode == 0, res.stderr
     assert json.loads(res.stdout)["points"] == 1000
     assert sys.executable != str(py)
+    # the trained model ships inside the installed package and is used offline
+    shipped = Path(where.strip()).parent / "data" / "model_small.pt"
+    assert shipped.is_file() and shipped.stat().st_size <= 25e6
+    res = subprocess.run([exe, "decompose", str(ROOT / "io" / "mug.obj"), "--features", "model",
+                          "-n", "3000", "-t", "0.2", "-k", "8", "--json", "-o", str(tmp_path / "h.obj")],
+                         cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    assert 1 <= json.loads(res.stdout)["hulls"] <= 8 and (tmp_path / "h.obj").is_file()

@@ -27,6 +27,7 @@ def test_prepare_train_resume_and_decompose_with_the_model(tiny_data, tmp_path, 
     base = ["train", str(tiny_data), "-o", str(run), "--config", "tiny", "--points", "1024",
             "--device", "cpu"]
     assert main([*base, "--steps", "3"]) == 0
+    assert "train: 100%" in capsys.readouterr().err  # the progress bar (quiet with -q)
     assert main([*base, "--steps", "5"]) == 0  # resumes from step 3
     log = read_log(run / "log.csv")
     assert [int(r["step"]) for r in log] == [1, 2, 3, 4, 5]
@@ -56,6 +57,10 @@ def test_prepare_train_resume_and_decompose_with_the_model(tiny_data, tmp_path, 
     again = pointcvx.decompose(ROOT / "io" / "mug.obj", **opts)
     assert _cached_model.cache_info().hits == hits + 1
     assert [h.vertices.tolist() for h in first.hulls] == [h.vertices.tolist() for h in again.hulls]
+    two = pointcvx.decompose(ROOT / "io" / "mug.obj", views=2, **opts)
+    assert two.params["views"] == 2 and 1 <= len(two.hulls) <= 12
+    assert main([*args, "--overwrite", "--views", "0"]) == EXIT_INPUT
+    assert "views must be a positive integer" in capsys.readouterr().err
 
     # a new run warm-started from those weights: fresh step count, the same weights at step 0
     import torch

@@ -27,14 +27,21 @@ from pathlib import Path
 SKIP_SUFFIXES = {".md", ".txt", ".json", ".csv", ".urdf", ".mtl", ".png", ".jpg"}
 
 
-def run_one(path: str, opts: dict) -> dict:
+def shape_names(files: list[str]) -> dict[str, str]:
+    """File -> row name: its stem, or its whole name where two files share a stem (biker.ply and
+    biker.spz)."""
+    stems = [Path(f).stem for f in files]
+    return {f: (Path(f).name if stems.count(s) > 1 else s) for f, s in zip(files, stems, strict=True)}
+
+
+def run_one(path: str, opts: dict, name: str | None = None) -> dict:
     import torch
 
     torch.set_num_threads(1)
     import pointcvx
     from pointcvx.metrics import evaluate, evaluate_points
 
-    row = {"shape": Path(path).stem}
+    row = {"shape": name or Path(path).stem}
     try:
         t = time.perf_counter()
         result = pointcvx.decompose(path, **opts)
@@ -97,7 +104,8 @@ def main(argv: list[str] | None = None) -> int:
             "features": args.features, "model": args.model, "views": args.views, "seed": args.seed}
     rows = []
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
-        futures = {pool.submit(run_one, f, opts): f for f in files}
+        names = shape_names(files)
+        futures = {pool.submit(run_one, f, opts, names[f]): f for f in files}
         for fut in as_completed(futures):
             row = fut.result()
             rows.append(row)

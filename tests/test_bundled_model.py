@@ -1,0 +1,69 @@
+"""The trained model shipped in the package: size, architecture, determinism, and that it has
+learned convexity (held-out shapes' convex pairs score above their non-convex ones)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from shapes import torus, u_block
+
+import pointcvx
+from pointcvx.features import sample_triplets
+from pointcvx.model import FeatureNet, ModelConfig, ModelFeatureSource, count_parameters, load_model
+from pointcvx.model.train import load_checkpoint, seed_everything
+from pointcvx.pipeline import BUNDLED_MODEL, bundled_model_path
+from pointcvx.solid import Solid
+
+
+def pair_accuracy(source, triplets) -> float:
+    """Fraction of (anchor, negative) pairs where the anchor is more similar to its positive."""
+    fa = source.features(triplets.pool[triplets.anchor])
+    fp = source.features(triplets.positive)
+    fn = source.features(triplets.pool)[triplets.negative]  # (a, k, d)
+    pos = np.sum(fa * fp, axis=1)
+    neg = np.einsum("ad,akd->ak", fa, fn)
+    return float(np.mean(pos[:, None] > neg))
+
+
+@pytest.fixture(scope="module")
+def shapes():
+    out = {}
+    for name, mesh in (("u_block", u_block()), ("torus", torus())):
+        cloud = pointcvx.OrientedCloud.from_trimesh(mesh, n_points=8000, seed=0).normalized()
+        solid = Solid(np.asarray(cloud.mesh.vertices), np.asarray(cloud.mesh.faces))
+        out[name] = (cloud, sample_triplets(solid, cloud.points, cloud.normals, n_anchors=512,
+                                            n_candidates=256, n_hard=32, n_uniform=32, seed=0))
+    return out
+
+
+def test_bundled_weights_ship_and_load():
+    assert bundled_model_path() == BUNDLED_MODEL and BUNDLED_MODEL.is_file()
+    assert BUNDLED_MODEL.stat().st_size <= 25e6
+    state = load_checkpoint(BUNDLED_MODEL)
+    assert state["optimizer"] is None and state["step"] > 0
+    assert state["config"].to_dict() | {"train": None, "name": None} == (
+        ModelConfig.preset("small").to_dict() | {"train": None, "name": None})
+    net = load_model(BUNDLED_MODEL)
+    assert 1e6 <= count_parameters(net) <= 10e6 and not net.training
+
+
+def test_bundled_model_has_learned_convexity(shapes):
+    net = load_model(BUNDLED_MODEL)
+    seed_everything(0)
+    untrained = FeatureNet(ModelConfig.preset("small")).eval()
+    for name, (cloud, triplets) in shapes.items():
+        trained = pair_accuracy(ModelFeatureSource(net, cloud.points, cloud.normals), triplets)
+        chance = pair_accuracy(ModelFeatureSource(untrained, cloud.points, cloud.normals), triplets)
+        assert trained > 0.8 and trained > chance + 0.15, (name, trained, chance)
+
+
+def test_bundled_model_is_deterministic(shapes):
+    cloud, triplets = shapes["u_block"]
+    a = ModelFeatureSource(load_model(BUNDLED_MODEL), cloud.points, cloud.normals).features(triplets.pool)
+    b = ModelFeatureSource(load_model(BUNDLED_MODEL), cloud.points, cloud.normals).features(triplets.pool)
+    assert np.array_equal(a, b)
+    first = pointcvx.decompose(u_block(), features="model", n_points=6000, threshold=0.1, max_hulls=8)
+    again = pointcvx.decompose(u_block(), features="model", n_points=6000, threshold=0.1, max_hulls=8)
+    assert first.params["features"] == "model" and first.params["model"] is None
+    assert [h.vertices.tolist() for h in first.hulls] == [h.vertices.tolist() for h in again.hulls]
+    assert 3 <= len(first.hulls) <= 8  # a U is three boxes
