@@ -207,8 +207,14 @@ def test_decompose_help_is_complete(capsys):
         assert flag in text
 
 
-def test_model_features_are_refused_clearly(tmp_path, capsys):
+def test_model_features_are_refused_clearly(tmp_path, capsys, monkeypatch):
     out = tmp_path / "h.obj"
     args = ["decompose", str(ROOT / "io" / "mug.obj"), "--features", "model", "-q", "-o", str(out)]
+    assert main([*args, "--model", str(tmp_path / "missing.pt")]) == EXIT_INPUT and not out.exists()
+    assert "no such model checkpoint" in capsys.readouterr().err
+    # a build without the bundled weights (e.g. a source tree without pointcvx/data) says so
+    import pointcvx.pipeline
+
+    monkeypatch.setattr(pointcvx.pipeline, "BUNDLED_MODEL", tmp_path / "not_shipped.pt")
     assert main(args) == EXIT_INPUT and not out.exists()
     assert "no feed-forward model" in capsys.readouterr().err
