@@ -47,21 +47,15 @@ def _load_arrays(job: dict) -> tuple[np.ndarray, np.ndarray]:
 
 def write_obj(path: str | os.PathLike, hulls: list[tuple[np.ndarray, np.ndarray]]) -> int:
     """Write ``hulls`` ((k, 3) float vertices, (f, 3) int faces) as an OBJ with one ``o hull_NNN``
-    object per hull, skipping hulls without a face; return how many were written."""
-    lines = ["# pointcvx bench hulls"]
-    offset, written = 1, 0
-    for vertices, faces in hulls:
-        v = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
-        f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
-        if len(f) == 0 or len(v) == 0:
-            continue
-        lines.append(f"o hull_{written:03d}")
-        lines.extend(f"v {x:.9g} {y:.9g} {z:.9g}" for x, y, z in v)
-        lines.extend(f"f {a + offset} {b + offset} {c + offset}" for a, b, c in f)
-        offset += len(v)
-        written += 1
-    Path(path).write_text("\n".join(lines) + "\n")
-    return written
+    object per hull (:func:`pointcvx.result.obj_text`), skipping hulls without a face; return how
+    many were written."""
+    from pointcvx.result import obj_text
+
+    pairs = [(np.asarray(v, dtype=np.float64).reshape(-1, 3), np.asarray(f, dtype=np.int64).reshape(-1, 3))
+             for v, f in hulls]
+    kept = [(v, f) for v, f in pairs if len(v) and len(f)]
+    Path(path).write_text(obj_text(kept))
+    return len(kept)
 
 
 def read_obj_objects(path: str | os.PathLike) -> list[tuple[np.ndarray, np.ndarray]]:

@@ -613,6 +613,17 @@ def _hull_of(item) -> np.ndarray:
     return _as_points(item, "hull points")
 
 
+def _hull_points(hulls) -> list[np.ndarray]:
+    """The (m_i, 3) float points of each hull-like item; InputError when there is no hull or a
+    hull has no vertex."""
+    raw = [_hull_of(h) for h in hulls]
+    if not raw:
+        raise InputError("no hulls to evaluate")
+    if any(len(r) == 0 for r in raw):
+        raise InputError("a hull has no vertices")
+    return raw
+
+
 def _closed_mesh(mesh, resolution: int):
     """(closed outward trimesh, how it was obtained) from any trimesh.Trimesh: the mesh itself
     when it already bounds a solid (watertight, consistently wound, parts disjoint or nested),
@@ -859,11 +870,7 @@ def _evaluate(mesh, hulls, n_samples, seed, k, n_volume_samples, coverage_tol, w
 
     if not isinstance(mesh, trimesh.Trimesh):
         raise InputError(f"expected a triangle mesh, got {type(mesh).__name__}")
-    raw = [_hull_of(h) for h in hulls]
-    if not raw:
-        raise InputError("no hulls to evaluate")
-    if any(len(r) == 0 for r in raw):
-        raise InputError("a hull has no vertices")
+    raw = _hull_points(hulls)
     norm = Normalization.to_unit_cube(np.asarray(mesh.vertices)[np.unique(np.asarray(mesh.faces))])
     unit = mesh.copy()
     unit.apply_transform(norm.as_matrix())
@@ -951,9 +958,7 @@ def evaluate_points(points, hulls, *, n_samples: int = 20000, seed: int = 0,
     from .cloud import Normalization
 
     pts = _as_points(points)
-    raw = [_hull_of(h) for h in hulls]
-    if not raw:
-        raise InputError("no hulls to evaluate")
+    raw = _hull_points(hulls)
     norm = Normalization.to_unit_cube(pts)
     pts = norm.forward(pts)
     hl = [convex_hull(norm.forward(r)) for r in raw]

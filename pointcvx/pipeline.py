@@ -97,7 +97,8 @@ def compute_features(cloud: OrientedCloud, solid, *, method: str = "optimize", s
         from .model.source import ModelFeatureSource
 
         try:
-            net = _cached_model(str(path.resolve()), path.stat().st_mtime_ns, path.stat().st_size)
+            stat = path.stat()
+            net = _cached_model(str(path.resolve()), stat.st_mtime_ns, stat.st_size)
         except (KeyError, RuntimeError, ValueError, EOFError, pickle.UnpicklingError) as exc:
             first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
             raise InputError(f"{path}: not a pointcvx model checkpoint ({first[:120]})") from None

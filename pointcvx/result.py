@@ -182,23 +182,26 @@ class Decomposition:
                     if ext == ".stl":
                         h.to_trimesh().export(tmp, file_type="stl")
                     else:
-                        tmp.write_text(_obj_text([h]))
+                        tmp.write_text(obj_text([(h.vertices, h.faces)]))
             return paths
         if suffix != ".obj":
             raise OutputError(f"{target}: unsupported output format {suffix!r} (use .obj, or a "
                               "directory for one file per hull)")
         with atomic_path(target, overwrite=overwrite) as tmp:
-            tmp.write_text(_obj_text(self.hulls))
+            tmp.write_text(obj_text([(h.vertices, h.faces) for h in self.hulls]))
         return [target]
 
 
-def _obj_text(hulls: list[ConvexHull]) -> str:
-    """Wavefront OBJ text with one ``o hull_NNN`` object per hull (1-based global indices)."""
+def obj_text(hulls) -> str:
+    """Wavefront OBJ text with one ``o hull_NNN`` object per hull (1-based global indices).
+
+    ``hulls``: a sequence of ((v, 3) float vertices, (f, 3) int faces) pairs.
+    """
     lines = ["# pointcvx convex decomposition", f"# hulls {len(hulls)}"]
     offset = 1
-    for i, h in enumerate(hulls):
+    for i, (vertices, faces) in enumerate(hulls):
         lines.append(f"o hull_{i:03d}")
-        lines.extend(f"v {x:.9g} {y:.9g} {z:.9g}" for x, y, z in h.vertices)
-        lines.extend(f"f {a + offset} {b + offset} {c + offset}" for a, b, c in h.faces)
-        offset += len(h.vertices)
+        lines.extend(f"v {x:.9g} {y:.9g} {z:.9g}" for x, y, z in vertices)
+        lines.extend(f"f {a + offset} {b + offset} {c + offset}" for a, b, c in faces)
+        offset += len(vertices)
     return "\n".join(lines) + "\n"
