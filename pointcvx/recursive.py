@@ -113,7 +113,8 @@ class Decomposer:
 
     def __init__(self, points, normals, features, solid, *, split: str = "auto",
                  is_mesh: bool = False, blend: float = 1.0, candidates: tuple = (0.5, 1.0, 2.0),
-                 max_split_points: int = 3000, concavity_samples: int = 2000, seed: int = 0):
+                 max_split_points: int = 3000, concavity_samples: int = 2000,
+                 rank_points: int = 1000, rank_samples: int = 300, seed: int = 0):
         if split not in SPLIT_METHODS:
             raise InputError(f"unknown split method {split!r}; expected one of {SPLIT_METHODS}")
         self.points = np.asarray(points, dtype=np.float64)
@@ -129,7 +130,17 @@ class Decomposer:
         self.candidates = tuple(float(c) for c in candidates) or (1.0,)
         self.max_split_points = int(max_split_points)
         self.concavity_samples = int(concavity_samples)
+        # Proposals are ranked on a coarse estimate (at most rank_points points of each child,
+        # rank_samples samples); only the winner's children get the full measure.
+        self.rank_points = int(rank_points)
+        self.rank_samples = int(rank_samples)
         self.seed = int(seed)
+        self.refine = 2
+        # A fixed random priority per point: a part's coarse subsample is its rank_points
+        # points of lowest priority, the same points whichever proposal the part comes from.
+        self._priority = np.random.default_rng(self.seed).permutation(len(self.points))
+        # Typical distance between neighbouring points (for the coarse estimate's error bound).
+        self.spacing = float(np.median(cKDTree(self.points).query(self.points, k=2)[0][:, 1]))
         self.graph = neighbour_graph(self.points)
         self.tree = SplitTree()
         self.evaluations = 0
@@ -137,29 +148,56 @@ class Decomposer:
         self.tree.add(None, root, self.concavity(root))
 
     # ------------------------------------------------------------------ measures
-    def concavity(self, indices: np.ndarray) -> float:
+    def concavity(self, indices: np.ndarray, coarse: bool = False) -> float:
         """Concavity of the part made of the points ``indices``.
 
         As in the evaluation protocol (the shape intersected with the part's hull), the surface
         of the piece is every cloud point inside the part's hull, the part's own and any other
         part's that the hull swallows (see metrics.part_concavity for the measure itself).
+
+        ``coarse``: a cheaper estimate for ranking proposals, from at most ``rank_points`` of
+        the part's points (and of the swallowed ones, the same share) and ``rank_samples``
+        samples.
         """
         self.evaluations += 1
+        others = self.points
+        n_samples = self.concavity_samples
+        if coarse and len(indices) > self.rank_points:
+            keep = np.argpartition(self._priority[indices], self.rank_points - 1)[: self.rank_points]
+            cut = self._priority[indices[keep]].max()
+            indices = indices[keep]
+            others = self.points[self._priority <= cut]
+        if coarse:
+            n_samples = min(n_samples, self.rank_samples)
         pts = self.points[indices]
         if len(pts) < 4:
             return 0.0
         hull = convex_hull(pts)
         lo, hi = hull.bounds
-        near = np.flatnonzero(np.all((self.points >= lo) & (self.points <= hi), axis=1))
-        near = near[~np.isin(near, indices, assume_unique=True)]
+        near = np.all((others >= lo) & (others <= hi), axis=1)
+        if others is self.points:
+            near[indices] = False
+        else:  # the subsample's own points (all of priority <= cut) are in ``others`` too
+            own = np.zeros(len(self.points), dtype=bool)
+            own[indices] = True
+            near &= ~own[self._priority <= cut]
+        near = others[near]
         if len(near):
             # Points at least a hair inside the hull (not those on a shared cut face).
-            swallowed = near[hull_contains(hull, self.points[near], tol=-1e-3)]
+            swallowed = near[hull_contains(hull, near, tol=-1e-3)]
             if len(swallowed):
-                pts = np.concatenate([pts, self.points[swallowed]])
-        return float(part_concavity(pts, self.solid, hull=hull,
-                                    n_hull_samples=self.concavity_samples,
-                                    n_volume_samples=self.concavity_samples, seed=self.seed))
+                pts = np.concatenate([pts, swallowed])
+        return float(part_concavity(pts, self.solid, hull=hull, n_hull_samples=n_samples,
+                                    n_volume_samples=n_samples, seed=self.seed))
+
+    def coarse_margin(self, n_points: int) -> float:
+        """How far above the full concavity the coarse estimate of a part of ``n_points``
+        points can read: a coarse subsample of ``rank_points`` points is sparser than the cloud
+        by ``sqrt(n_points / rank_points)``, and the hull-to-part distance reads the gaps
+        between the kept points (about two spacings at worst)."""
+        if n_points <= self.rank_points:
+            return 0.0
+        return 2.0 * self.spacing * float(np.sqrt(n_points / self.rank_points))
 
     # ------------------------------------------------------------------ splitting
     def _components(self, indices: np.ndarray) -> np.ndarray:
@@ -182,7 +220,7 @@ class Decomposer:
         if self.method == "kmeans":
             from sklearn.cluster import KMeans
 
-            km = KMeans(n_clusters=2, n_init=4, random_state=seed).fit(x[sel])
+            km = KMeans(n_clusters=2, n_init=2, random_state=seed).fit(x[sel])
             side = km.predict(x) == 1
         else:
             from sklearn.cluster import AgglomerativeClustering
@@ -208,16 +246,24 @@ class Decomposer:
         idx = node.indices
         if len(idx) < 2 * MIN_PART_POINTS:
             return None
-        best = None
+        scored = []
         for side, min_size in self._proposals(idx, self.seed + node_id):
             if side.sum() < min_size or (~side).sum() < min_size:
                 continue
+            if any(np.count_nonzero(side != other) <= 0.005 * len(idx)
+                   or np.count_nonzero(side == other) <= 0.005 * len(idx) for _, other in scored):
+                continue  # (nearly) a proposal already scored
+            ca, cb = self.concavity(idx[~side], coarse=True), self.concavity(idx[side], coarse=True)
+            scored.append(((max(ca, cb), ca + cb), side))
+        if not scored:
+            return None
+        # The best coarse proposals get the full measure; the best of those is kept.
+        best = None
+        for _, side in sorted(scored, key=lambda item: item[0])[: self.refine]:
             ca, cb = self.concavity(idx[~side]), self.concavity(idx[side])
             score = (max(ca, cb), ca + cb)
             if best is None or score < best[0]:
                 best = (score, side, ca, cb)
-        if best is None:
-            return None
         _, side, ca, cb = best
         a = self.tree.add(node_id, idx[~side], ca)
         b = self.tree.add(node_id, idx[side], cb)
@@ -283,32 +329,43 @@ class Decomposer:
         """Greedily join neighbouring parts while the joint part stays under ``threshold``.
 
         Returns the final parts as index arrays, and their concavities. Neighbours: parts linked
-        by an edge of the surface neighbour graph. The pair with the lowest joint concavity is
-        merged first.
+        by an edge of the surface neighbour graph. Pairs are tried in order of a coarse estimate
+        of their joint concavity (see :meth:`concavity`), and the first whose full measure is at
+        most ``threshold`` is merged.
         """
         parts = {i: self.tree.nodes[leaf].indices for i, leaf in enumerate(leaves)}
         conc = {i: self.tree.nodes[leaf].concavity for i, leaf in enumerate(leaves)}
         label = np.empty(len(self.points), dtype=np.int64)
         for i, idx in parts.items():
             label[idx] = i
-        cache: dict[tuple[int, int], float] = {}
+        rough: dict[tuple[int, int], float] = {}  # coarse estimates of joint parts
+        full: dict[tuple[int, int], float] = {}
         next_id = len(parts)
         while len(parts) > 1:
             coo = self.graph.tocoo()
             a, b = label[coo.row], label[coo.col]
             pairs = {(int(x), int(y)) for x, y in zip(a[a < b], b[a < b], strict=True)}
-            best, best_pair = np.inf, None
-            for pair in sorted(pairs):
-                if pair not in cache:
-                    cache[pair] = self.concavity(np.concatenate([parts[pair[0]], parts[pair[1]]]))
-                if cache[pair] < best:
-                    best, best_pair = cache[pair], pair
-            if best_pair is None or best > threshold:
+            for pair in sorted(pairs - rough.keys()):
+                rough[pair] = self.concavity(np.concatenate([parts[pair[0]], parts[pair[1]]]),
+                                             coarse=True)
+            # Candidates in order of their coarse estimate; the first whose full measure is
+            # under the threshold is merged. Pairs whose estimate is far above it (beyond the
+            # estimate's own error, see coarse_margin) are never measured in full.
+            chosen = None
+            size = {p: len(parts[p[0]]) + len(parts[p[1]]) for p in pairs}
+            hopeful = [p for p in pairs if rough[p] <= 1.5 * threshold + self.coarse_margin(size[p])]
+            for pair in sorted(hopeful, key=lambda p: (rough[p], p)):
+                if pair not in full:
+                    full[pair] = self.concavity(np.concatenate([parts[pair[0]], parts[pair[1]]]))
+                if full[pair] <= threshold:
+                    chosen = pair
+                    break
+            if chosen is None:
                 break
-            i, j = best_pair
+            i, j = chosen
             merged = np.sort(np.concatenate([parts.pop(i), parts.pop(j)]))
             conc.pop(i), conc.pop(j)
-            parts[next_id], conc[next_id] = merged, best
+            parts[next_id], conc[next_id] = merged, full[chosen]
             label[merged] = next_id
             next_id += 1
         return [parts[k] for k in sorted(parts)], [conc[k] for k in sorted(parts)]

@@ -87,17 +87,27 @@ class Solid:
         return o3d.core.Tensor(rays)
 
     def contains(self, points: np.ndarray, chunk: int = 1 << 20) -> np.ndarray:
-        """(n,) bool: inside by ray parity, majority of three directions (robust to grazing rays)."""
+        """(n,) bool: inside by ray parity, majority of three directions (robust to grazing rays).
+
+        The third ray is cast only where the first two disagree.
+        """
         points = np.asarray(points, dtype=np.float64)
         out = np.empty(len(points), dtype=bool)
         for s in range(0, len(points), chunk):
             p = points[s : s + chunk]
-            votes = np.zeros(len(p), dtype=np.int8)
-            for d in _VOTE_DIRS:
-                hits = self.scene.count_intersections(self._rays(p, np.broadcast_to(d, p.shape)))
-                votes += (hits.numpy() % 2 == 1).astype(np.int8)
-            out[s : s + chunk] = votes >= 2
+            a, b = (self._odd_hits(p, d) for d in _VOTE_DIRS[:2])
+            inside = a & b
+            split = np.flatnonzero(a != b)
+            if len(split):
+                inside[split] = self._odd_hits(p[split], _VOTE_DIRS[2])
+            out[s : s + chunk] = inside
         return out
+
+    def _odd_hits(self, points: np.ndarray, direction: np.ndarray) -> np.ndarray:
+        """(n,) bool: whether a ray from each of (n, 3) ``points`` along ``direction`` crosses the
+        surface an odd number of times."""
+        hits = self.scene.count_intersections(self._rays(points, np.broadcast_to(direction, points.shape)))
+        return hits.numpy() % 2 == 1
 
     def first_hit(self, origins: np.ndarray, dirs: np.ndarray) -> np.ndarray:
         """(n,) float: distance along each unit direction to the first surface hit (inf if none)."""

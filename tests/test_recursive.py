@@ -1,0 +1,107 @@
+"""The recursive decomposer's shortcuts: the inside vote, coarse concavity for ranking splits and
+merges, and skipping duplicate split proposals. Each must give the answers of the full work."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from shapes import l_block, torus
+
+import pointcvx
+from pointcvx.pipeline import as_cloud
+from pointcvx.recursive import Decomposer
+from pointcvx.solid import _VOTE_DIRS, Solid
+
+
+def _majority_of_three(solid: Solid, points: np.ndarray) -> np.ndarray:
+    votes = sum(solid._odd_hits(points, d).astype(int) for d in _VOTE_DIRS)
+    return votes >= 2
+
+
+def _torus_depth(p: np.ndarray) -> np.ndarray:
+    """(n,) signed distance to the analytic torus of shapes.torus (negative inside)."""
+    return np.hypot(np.hypot(p[:, 0], p[:, 1]) - 1.0, p[:, 2]) - 0.3
+
+
+def _l_depth(p: np.ndarray) -> np.ndarray:
+    """(n,) signed distance bound for the L of shapes.l_block (negative inside)."""
+    def box(lo, hi):
+        return np.max(np.maximum(np.asarray(lo) - p, p - np.asarray(hi)), axis=1)
+
+    return np.minimum(box([0, 0, 0], [2, 1, 1]), box([0, 0, 1], [1, 1, 2]))
+
+
+@pytest.mark.parametrize("make, depth", [(torus, _torus_depth), (l_block, _l_depth)])
+def test_inside_vote_matches_three_ray_majority(make, depth):
+    mesh = make()
+    solid = Solid.from_trimesh(mesh)
+    rng = np.random.default_rng(0)
+    lo, hi = mesh.bounds
+    # Random points, plus points on and just off the faces (where single rays graze).
+    surface = np.asarray(mesh.sample(2000, seed=1))
+    pts = np.concatenate([rng.uniform(lo - 0.2, hi + 0.2, (20000, 3)),
+                          surface + rng.normal(0, 1e-3, surface.shape)])
+    fast = solid.contains(pts)
+    assert np.array_equal(fast, _majority_of_three(solid, pts))
+    # And it is the right answer wherever the faceted surface is clearly on one side.
+    d = depth(pts)
+    clear = np.abs(d) > 0.02
+    assert np.array_equal(fast[clear], d[clear] < 0)
+
+
+@pytest.fixture(scope="module")
+def l_decomposer():
+    cloud = as_cloud(l_block(), n_points=6000, seed=0)
+    from pointcvx.watertight import solid_for
+
+    solid = solid_for(cloud)
+    feats = np.zeros((len(cloud), 1))  # position-only splits: enough for an L
+    return Decomposer(cloud.points, cloud.normals, feats, solid, seed=0, rank_points=800,
+                      rank_samples=300)
+
+
+def test_coarse_concavity_tracks_the_full_measure(l_decomposer):
+    dec = l_decomposer
+    pts = dec.points
+    bar = np.flatnonzero(pts[:, 2] < pts[:, 2].min() + 0.45 * np.ptp(pts[:, 2]))
+    whole = np.arange(len(pts))
+    for part in (whole, bar):
+        full, coarse = dec.concavity(part), dec.concavity(part, coarse=True)
+        assert full - 0.03 < coarse <= full + dec.coarse_margin(len(part)), (len(part), full, coarse)
+        assert coarse == dec.concavity(part, coarse=True)  # deterministic
+    # The L is concave, the bar under it nearly convex, in both measures.
+    assert dec.concavity(whole, coarse=True) > 0.3
+    assert dec.concavity(bar) < 0.1
+
+
+def test_duplicate_proposals_are_scored_once():
+    cloud = as_cloud(l_block(), n_points=4000, seed=0)
+    from pointcvx.watertight import solid_for
+
+    solid = solid_for(cloud)
+    feats = np.zeros((len(cloud), 1))
+    counts = []
+    for candidates in ((1.0,), (1.0, 1.0, 1.0)):
+        dec = Decomposer(cloud.points, cloud.normals, feats, solid, candidates=candidates, seed=0)
+        before = dec.evaluations
+        children = dec.split(0)
+        counts.append(dec.evaluations - before)
+        sizes = sorted(len(dec.tree.nodes[c].indices) for c in children)
+    # Three copies of the same blend give the same proposals: no extra concavity evaluations.
+    assert counts[0] == counts[1], counts
+    assert sizes[0] > 0.25 * len(cloud)
+
+
+def test_merge_joins_an_over_split_shape_and_reports_full_concavities():
+    dec = pointcvx.decompose(l_block(), threshold=0.005, max_hulls=10, merge=False,
+                             n_points=6000, seed=0)._decomposer
+    leaves = dec.cut(0.005, 10)
+    assert len(leaves) == 10
+    # With 6000 points a box's measured concavity is 0.06-0.09 (the sampling floor), so merge at
+    # 0.15: an L is two boxes, the pieces of each merge back, the two boxes never join.
+    parts, conc = dec.merge(leaves, threshold=0.15)
+    assert len(parts) == 2
+    assert sorted(len(p) for p in parts) == [2829, 3171]
+    for idx, c in zip(parts, conc, strict=True):
+        assert c <= 0.15
+        assert c == pytest.approx(dec.concavity(idx), abs=1e-12)
