@@ -387,6 +387,7 @@ class _ShapeBench:
     def launch(self, method: str, params: dict, param: float) -> _Run:
         """Run ``method`` with ``params`` in a fresh worker process."""
         assert self.tmp is not None
+        _stop_if_orphaned()
         self.count += 1
         stem = self.tmp / f"{method}-{self.count:03d}"
         job = {
@@ -582,6 +583,20 @@ class _ShapeBench:
         make = self._coacd_params if method == "coacd" else self._vhacd_params
         return search_parameter(lambda x: self.launch(method, make(x), x), lo, hi, target,
                                 self.opts.search_runs, reuse, evaluate=self.evaluate)
+
+
+class BenchStopped(PointcvxError):
+    """The benchmark that started this pool worker is gone: start no more runs."""
+
+
+def _stop_if_orphaned() -> None:
+    """Raise :class:`BenchStopped` in a ``--jobs`` pool worker whose parent benchmark died (killed
+    or interrupted), so that an abandoned worker does not go on launching runs."""
+    import multiprocessing
+
+    parent = multiprocessing.parent_process()
+    if parent is not None and not parent.is_alive():
+        raise BenchStopped("the benchmark that started this worker has stopped")
 
 
 def search_parameter(run: Callable[[float], _Run], lo: float, hi: float, target: int, max_runs: int,

@@ -244,3 +244,45 @@ def test_rerun_resumes_and_redoes_only_missing_rows(run):
     assert _one(again, "vhacdx", "fixed")["error"] == ""
     changed = [p for p, t in stamp.items() if p.stat().st_mtime_ns != t]
     assert changed == [out / "hulls" / "vhacdx" / "fixed" / "l_block.obj"]
+
+
+_ORPHAN = r"""
+import multiprocessing, os, sys, time
+from pathlib import Path
+
+def child(flag):
+    from pointcvx.bench import BenchStopped, _stop_if_orphaned
+    _stop_if_orphaned()  # parent alive: nothing happens
+    Path(flag).write_text("started")
+    for _ in range(200):
+        time.sleep(0.05)
+        try:
+            _stop_if_orphaned()
+        except BenchStopped:
+            Path(flag).write_text("stopped")
+            return
+    Path(flag).write_text("ran on")
+
+if __name__ == "__main__":
+    ctx = multiprocessing.get_context("spawn")
+    p = ctx.Process(target=child, args=(sys.argv[1],))
+    p.start()
+    while not Path(sys.argv[1]).exists():
+        time.sleep(0.05)
+    os._exit(0)  # the benchmark dies without shutting its workers down
+"""
+
+
+def test_pool_worker_of_a_dead_benchmark_stops(tmp_path):
+    import subprocess
+    import sys
+    import time
+
+    script = tmp_path / "orphan.py"
+    script.write_text(_ORPHAN)
+    flag = tmp_path / "flag.txt"
+    subprocess.run([sys.executable, str(script), str(flag)], check=True, timeout=60)
+    deadline = time.time() + 30
+    while flag.read_text() == "started" and time.time() < deadline:
+        time.sleep(0.1)
+    assert flag.read_text() == "stopped"
