@@ -16,8 +16,11 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__
-from .errors import OutputError, PointcvxError
+from .errors import InputError, OutputError, PointcvxError
+from .export import EXTENSIONS as EXPORT_EXTENSIONS
+from .export import FORMATS as EXPORT_FORMATS
 from .progress import LazyBar
+from .simplify import TARGETS as ENGINE_TARGETS
 
 log = logging.getLogger("pointcvx")
 
@@ -108,13 +111,24 @@ def build_parser() -> argparse.ArgumentParser:
         description="Decompose INPUT (any format `pointcvx info` reads) into convex hulls: "
         "convex-aware features, then recursive splitting of the most concave part until every "
         "part's concavity is under --threshold or --max-hulls hulls exist, then a merge pass. "
-        "Writes an OBJ with one object per hull (in the input's units) and prints hulls, "
-        "concavity and time.",
+        "Writes the hulls in the input's units (an OBJ with one object per hull by default; STL, "
+        "GLB/GLTF, URDF, MJCF or a JSON report with --format or by OUT's suffix), optionally "
+        "within an engine's per-hull caps (--target), and prints hulls, concavity and time.",
     )
     dec.add_argument("input", help="mesh, CAD part, Gaussian splat or scan")
     dec.add_argument("-o", "--output", metavar="OUT",
-                     help="OUT.obj (one 'o' per hull), OUT.stl/DIR for one file per hull "
+                     help="OUT.obj (one 'o' per hull), OUT.stl/DIR for one file per hull, OUT.glb/"
+                          "OUT.gltf (a node per hull), OUT.urdf or OUT.xml/OUT.mjcf (folder OUT/ "
+                          "with the robot file and an OBJ per hull), OUT.json (report) "
                           "(default: ./INPUT_STEM_hulls.obj)")
+    dec.add_argument("--format", choices=list(EXPORT_FORMATS), default=None,
+                     help="output format (default: from OUT's suffix)")
+    dec.add_argument("--target", choices=list(ENGINE_TARGETS), default=None,
+                     help="keep every hull within this engine's caps (physx: 255 vertices and 255 "
+                          "triangles; physx-gpu: 64 and 64; newton: 64 vertices; unity: 255 "
+                          "triangles; mujoco, bullet: none); reduced hulls still contain their part")
+    dec.add_argument("--max-hull-vertices", type=int, default=None, metavar="N",
+                     help="at most N vertices per hull (with --target: the tighter cap wins)")
     dec.add_argument("-t", "--threshold", type=float, default=0.1,
                      help="concavity threshold in the normalised [-1,1]^3 frame (default 0.1)")
     dec.add_argument("-k", "--max-hulls", type=int, default=64, help="hull budget (default 64)")
@@ -228,19 +242,38 @@ class _Bars:
             bar.close()
 
 
-def default_output(input_path: str) -> Path:
-    return Path.cwd() / f"{Path(input_path).stem}_hulls.obj"
+def default_output(input_path: str, format: str | None = None) -> Path:
+    return Path.cwd() / f"{Path(input_path).stem}_hulls{EXPORT_EXTENSIONS[format or 'obj']}"
+
+
+def _check_decompose_output(out: Path, fmt: str, per_hull: bool, args: argparse.Namespace) -> None:
+    """Refuse before the (slow) decomposition what the export would refuse after it."""
+    from .export import main_file, output_folder
+
+    main = main_file(out, fmt, per_hull)
+    if main is None or fmt in ("urdf", "mjcf"):  # a folder, made if missing
+        folder = output_folder(out, fmt)
+        if folder.exists() and not folder.is_dir():
+            raise OutputError(f"{folder}: exists and is not a directory")
+        first = main if main is not None else folder / f"hull_000{EXPORT_EXTENSIONS[fmt]}"
+        if first.exists() and not args.overwrite:
+            raise OutputError(f"{first}: exists; pass --overwrite to replace it")
+        return
+    check_output_path(str(main), [args.input], args.overwrite)
 
 
 def cmd_decompose(args: argparse.Namespace) -> int:
+    from .export import format_for
     from .pipeline import decompose
+    from .simplify import hull_limits
 
-    out = Path(args.output) if args.output else default_output(args.input)
-    per_hull = args.per_hull or out.suffix.lower() in ("", ".stl") or out.is_dir()
-    if not per_hull:
-        check_output_path(str(out), [args.input], args.overwrite)
-    elif out.exists() and not out.is_dir() and out.suffix.lower() not in (".obj", ".stl"):
-        raise OutputError(f"{out}: exists and is not a directory")
+    out = Path(args.output) if args.output else default_output(args.input, args.format)
+    fmt = format_for(out, args.format)
+    per_hull = args.per_hull or fmt == "stl" or (fmt == "obj" and (out.suffix == "" or out.is_dir()))
+    if per_hull and fmt not in ("obj", "stl"):
+        raise InputError(f"--per-hull applies to obj and stl outputs, not {fmt}")
+    limits = hull_limits(args.target, args.max_hull_vertices)
+    _check_decompose_output(out, fmt, per_hull, args)
     opts = _load_options(args)
     load_kwargs = {k: v for k, v in vars(opts).items() if k not in ("n_points", "seed")}
     bars = _Bars(not args.quiet)
@@ -253,17 +286,32 @@ def cmd_decompose(args: argparse.Namespace) -> int:
         )
     finally:
         bars.close()
-    written = result.export(out, overwrite=args.overwrite, per_hull=per_hull)
+    if limits.active:
+        result = result.limit_hulls(limits.target, limits.max_vertices, limits.max_faces)
+    written = result.export(out, fmt, overwrite=args.overwrite, per_hull=per_hull)
     if args.quiet:
         return 0
     summary = result.summary()
-    summary["output"] = str(written[0].parent / "hull_*" if per_hull else written[0])
+    summary["format"] = fmt
+    summary["output"] = str(written[0].parent / f"hull_*{EXPORT_EXTENSIONS[fmt]}" if per_hull
+                            else written[0])
+    summary["files"] = len(written)
+    if limits.active:
+        summary["hull_limits"] = limits.as_dict()
     summary["timings"] = {k: round(v, 3) for k, v in result.timings.items()}
     if args.json:
         print(json.dumps(summary, indent=2))
     else:
-        print(f"{summary['hulls']} hulls, max concavity {summary['max_concavity']:.4f}, "
-              f"{summary['seconds']:.2f} s -> {summary['output']}")
+        line = (f"{summary['hulls']} hulls, max concavity {summary['max_concavity']:.4f}, "
+                f"{summary['seconds']:.2f} s")
+        if limits.active:
+            caps = ", ".join(f"{what} <= {v}" for what, v in (("vertices", limits.max_vertices),
+                                                               ("triangles", limits.max_faces))
+                             if v is not None)
+            line += (f"; {limits.target or 'limits'} ({caps}): at most {summary['max_hull_vertices']} "
+                     f"vertices per hull, added volume {summary['added_volume']:.6g} "
+                     f"(+{100 * summary['added_volume_ratio']:.3g}%)")
+        print(f"{line} -> {summary['output']}")
     return 0
 
 

@@ -126,6 +126,8 @@ def decompose(
     blend: float = 1.0,
     n_points: int = 20000,
     seed: int = 0,
+    target: str | None = None,
+    max_hull_vertices: int | None = None,
     progress: Progress | None = None,
     **load_options: Any,
 ) -> Decomposition:
@@ -158,6 +160,11 @@ def decompose(
         Surface points used (meshes are sampled, clouds capped; seeded).
     seed : int
         Same seed, same result.
+    target : {"mujoco", "bullet", "physx", "physx-gpu", "newton", "unity"}, optional
+        Keep every hull within this engine's per-hull caps (see :mod:`pointcvx.simplify`): a
+        hull over a cap is replaced by a coarser one that still contains its part.
+    max_hull_vertices : int, optional
+        At most this many vertices per hull (with ``target``, the tighter cap wins).
     progress : callable, optional
         ``progress(stage, done, total)``.
     **load_options
@@ -178,6 +185,10 @@ def decompose(
 
     if split not in SPLIT_METHODS:
         raise InputError(f"unknown split method {split!r}; expected one of {SPLIT_METHODS}")
+    if target is not None or max_hull_vertices is not None:
+        from .simplify import hull_limits
+
+        hull_limits(target, max_hull_vertices)  # bad settings fail before any work
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     cloud = as_cloud(x, n_points=n_points, seed=seed, **load_options)
@@ -200,7 +211,10 @@ def decompose(
               "n_points": int(n_points),
               "seed": int(seed), **load_options}
     timings["_start"] = t0
-    return cut_decomposition(decomposer, cloud, feats, params, timings, progress=progress)
+    result = cut_decomposition(decomposer, cloud, feats, params, timings, progress=progress)
+    if target is not None or max_hull_vertices is not None:
+        result = result.limit_hulls(target, max_hull_vertices)
+    return result
 
 
 def cut_decomposition(decomposer, cloud: OrientedCloud, feats: np.ndarray, params: dict,

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import logging
 import os
-from dataclasses import dataclass, field
+import time
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -12,7 +13,7 @@ import numpy as np
 
 from .cloud import OrientedCloud
 from .errors import OutputError
-from .io.files import atomic_path
+from .export import obj_text as obj_text  # noqa: F401 - re-exported (bench worker, callers)
 
 log = logging.getLogger(__name__)
 
@@ -29,12 +30,15 @@ class ConvexHull:
         Concavity of the part it covers, in the normalised [-1, 1]^3 frame.
     points : int
         How many cloud points the part holds.
+    added_volume : float
+        Volume added by engine limits (:meth:`Decomposition.limit_hulls`); 0 for the plain hull.
     """
 
     vertices: np.ndarray
     faces: np.ndarray
     concavity: float
     points: int
+    added_volume: float = 0.0
 
     @property
     def volume(self) -> float:
@@ -107,7 +111,13 @@ class Decomposition:
             "points": int(len(self.labels)),
             "hull_vertices": int(sum(len(h.vertices) for h in self.hulls)),
             "seconds": round(float(self.timings.get("total", 0.0)), 3),
-        }
+        } | ({"max_hull_vertices": max((len(h.vertices) for h in self.hulls), default=0),
+              "added_volume": self.added_volume,
+              "added_volume_ratio": self._added_ratio()} if self.params.get("hull_limits") else {})
+
+    def _added_ratio(self) -> float:
+        before = sum(h.volume - h.added_volume for h in self.hulls)
+        return float(self.added_volume / before) if before > 0 else 0.0
 
     # ------------------------------------------------------------------ re-cutting
     def recut(self, threshold: float | None = None, max_hulls: int | None = None,
@@ -129,8 +139,13 @@ class Decomposition:
             params["max_hulls"] = int(max_hulls)
         if merge is not None:
             params["merge"] = bool(merge)
-        return cut_decomposition(self._decomposer, self.cloud, self.features, params,
-                                 dict(self.timings))
+        out = cut_decomposition(self._decomposer, self.cloud, self.features, params,
+                                dict(self.timings))
+        limits = params.get("hull_limits")
+        if limits:
+            out = out.limit_hulls(limits.get("target"), limits.get("max_vertices"),
+                                  limits.get("max_faces"))
+        return out
 
     # ------------------------------------------------------------------ conversions
     def to_trimesh(self):
@@ -154,54 +169,71 @@ class Decomposition:
             out.append(m)
         return out
 
-    # ------------------------------------------------------------------ export
-    def export(self, path: str | os.PathLike, *, overwrite: bool = False,
-               per_hull: bool = False) -> list[Path]:
-        """Write the hulls; return the files written.
+    # ------------------------------------------------------------------ engine limits
+    def limit_hulls(self, target: str | None = None, max_vertices: int | None = None,
+                    max_faces: int | None = None) -> Decomposition:
+        """The same decomposition with every hull within an engine's per-hull caps.
 
-        ``path`` ending in ``.obj``: one OBJ with an ``o hull_NNN`` object per hull. With
-        ``per_hull=True``, a ``path`` that is a directory or has no suffix: one ``hull_NNN.obj``
-        per hull in that directory; a ``path`` ending in ``.stl``: one ``hull_NNN.stl`` per hull
-        in the directory named by its stem. Writes are
-        atomic; existing files are kept unless ``overwrite``.
+        ``target``: ``"mujoco"``, ``"bullet"`` (no caps), ``"physx"`` (255 vertices, 255
+        triangles), ``"physx-gpu"`` (64 vertices, 64 triangles), ``"newton"`` (64 vertices),
+        ``"unity"`` (255 triangles); ``max_vertices`` / ``max_faces`` (triangles) tighten them.
+        A hull over a cap is replaced by a coarser one that contains it (see
+        :mod:`pointcvx.simplify`), so no point loses coverage; each hull's ``added_volume`` says
+        what it cost. The caps are kept in ``params["hull_limits"]`` and :meth:`recut` applies
+        them again.
         """
-        target = Path(path)
-        suffix = target.suffix.lower()
-        if per_hull or target.is_dir() or suffix in ("", ".stl"):
-            ext = ".obj"
-            folder = target
-            if suffix in (".obj", ".stl"):
-                ext, folder = suffix, target.with_suffix("")
-            folder.mkdir(parents=True, exist_ok=True)
-            paths = [folder / f"hull_{i:03d}{ext}" for i in range(len(self.hulls))]
-            clash = [p for p in paths if p.exists()] if not overwrite else []
-            if clash:
-                raise OutputError(f"{clash[0]}: exists; pass overwrite to replace it")
-            for p, h in zip(paths, self.hulls, strict=True):
-                with atomic_path(p, overwrite=True) as tmp:
-                    if ext == ".stl":
-                        h.to_trimesh().export(tmp, file_type="stl")
-                    else:
-                        tmp.write_text(obj_text([(h.vertices, h.faces)]))
-            return paths
-        if suffix != ".obj":
-            raise OutputError(f"{target}: unsupported output format {suffix!r} (use .obj, or a "
-                              "directory for one file per hull)")
-        with atomic_path(target, overwrite=overwrite) as tmp:
-            tmp.write_text(obj_text([(h.vertices, h.faces) for h in self.hulls]))
-        return [target]
+        from .simplify import hull_limits, simplify_hull
 
+        limits = hull_limits(target, max_vertices, max_faces)
+        t = time.perf_counter()
+        hulls = []
+        for h in self.hulls:
+            v, f, added = simplify_hull(h.vertices, h.faces, limits)
+            hulls.append(ConvexHull(v, f, h.concavity, h.points, h.added_volume + added))
+        seconds = time.perf_counter() - t
+        timings = dict(self.timings)
+        timings["limits"] = timings.get("limits", 0.0) + seconds
+        timings["total"] = timings.get("total", 0.0) + seconds
+        params = dict(self.params)
+        params["hull_limits"] = limits.as_dict()
+        return replace(self, hulls=hulls, timings=timings, params=params)
 
-def obj_text(hulls) -> str:
-    """Wavefront OBJ text with one ``o hull_NNN`` object per hull (1-based global indices).
+    @property
+    def added_volume(self) -> float:
+        """Volume the engine limits added to the hulls, in input units cubed (0 without limits)."""
+        return float(sum(h.added_volume for h in self.hulls))
 
-    ``hulls``: a sequence of ((v, 3) float vertices, (f, 3) int faces) pairs.
-    """
-    lines = ["# pointcvx convex decomposition", f"# hulls {len(hulls)}"]
-    offset = 1
-    for i, (vertices, faces) in enumerate(hulls):
-        lines.append(f"o hull_{i:03d}")
-        lines.extend(f"v {x:.9g} {y:.9g} {z:.9g}" for x, y, z in vertices)
-        lines.extend(f"f {a + offset} {b + offset} {c + offset}" for a, b, c in faces)
-        offset += len(vertices)
-    return "\n".join(lines) + "\n"
+    # ------------------------------------------------------------------ export
+    def export(self, path: str | os.PathLike, format: str | None = None, *, overwrite: bool = False,
+               per_hull: bool = False, target: str | None = None,
+               max_hull_vertices: int | None = None, free_joint: bool = True,
+               density: float = 1000.0) -> list[Path]:
+        """Write the hulls; return the files written, the main one first.
+
+        ``format`` (default: from ``path``'s suffix): ``"obj"`` (.obj: one file, an ``o
+        hull_NNN`` object per hull; with ``per_hull``, a folder or a path without suffix: one
+        ``hull_NNN.obj`` each), ``"stl"`` (.stl: one ``hull_NNN.stl`` per hull in the folder
+        named by the stem), ``"glb"``/``"gltf"`` (a scene, a node per hull), ``"urdf"`` (.urdf)
+        and ``"mjcf"`` (.xml, .mjcf): a folder named by the stem holding the robot file and an OBJ
+        per hull (plus the input mesh as visual), ``"json"`` (.json: the report). See
+        :mod:`pointcvx.export` for the layouts. ``target`` / ``max_hull_vertices`` apply
+        :meth:`limit_hulls` first. ``free_joint`` (MJCF) and ``density`` (URDF, MJCF; input units)
+        shape the robot files.
+
+        Writes are atomic and all-or-nothing; the input file is never written over and existing
+        files are kept (:class:`~pointcvx.errors.OutputError`) unless ``overwrite``.
+        """
+        from .export import export_decomposition
+
+        result = self
+        if target is not None or max_hull_vertices is not None:
+            result = self.limit_hulls(target, max_hull_vertices)
+        return export_decomposition(result, path, format, overwrite=overwrite, per_hull=per_hull,
+                                    free_joint=free_joint, density=density)
+
+    def report(self) -> dict[str, Any]:
+        """The JSON report (per hull: vertices, faces, volume, added volume, concavity; totals;
+        parameters; seed; timings), as written by ``export(..., format="json")``."""
+        from .export import report
+
+        return report(self)

@@ -170,6 +170,23 @@ def test_closed_shape_normals_point_outward(tmp_path, shape):
     assert cloud.info["sh_degree"] == 1
 
 
+def test_large_splats_are_thinned_before_normals_and_stay_outward(tmp_path, monkeypatch):
+    rng = np.random.default_rng(2)
+    g = _shape_gaussians("sphere", 6000, rng)
+    path = tmp_path / "sphere.ply"
+    _write(path, g, rng=np.random.default_rng(7))
+    # A small working budget (production: max(10 n_points, 200k)) so the test file stays small.
+    monkeypatch.setattr(S, "WORK_MIN", 1500)
+    monkeypatch.setattr(S, "WORK_FACTOR", 3)
+    thin = pointcvx.load(path, normalize=False, n_points=400, seed=3)
+    assert thin.info["gaussians_used"] == 1500 and len(thin) == 400
+    assert pointcvx.load(path, normalize=False, n_points=400, seed=3).points.tolist() == thin.points.tolist()
+    outward = np.einsum("ij,ij->i", thin.normals, _truth_normals("sphere", thin.points)) > 0
+    assert outward.mean() >= 0.99, outward.mean()
+    # Without a point budget every Gaussian is used.
+    assert "gaussians_used" not in pointcvx.load(path, normalize=False).info
+
+
 def test_inria_reader_takes_properties_by_name(tmp_path):
     rng = np.random.default_rng(2)
     g = _shape_gaussians("sphere", 500, rng)

@@ -63,6 +63,11 @@ MIXTURE_NEIGHBORS = 16
 ORIENT_NEIGHBORS = 12
 #: Directions the cloud is z-buffered from to tell the outside of each surface piece.
 VISIBILITY_VIEWS = 32
+# With a point budget (n_points) and one point per Gaussian, at most this many Gaussians times the
+# budget (and at least WORK_MIN) go through filtering and normal estimation: the cloud is a
+# uniform subset of them anyway, and normals from a uniform subset are as good.
+WORK_FACTOR = 10
+WORK_MIN = 200_000
 NORMALS_NOTE = (f"smallest axis of the local Gaussian mixture (each Gaussian + {MIXTURE_NEIGHBORS} "
                 "neighbours), oriented (MST propagation + hull vote, then visibility votes from "
                 f"{VISIBILITY_VIEWS} directions)")
@@ -1007,11 +1012,25 @@ def decode_splat(path: str | os.PathLike, fmt: str) -> tuple[dict[str, np.ndarra
     return decoder(path)
 
 
+def working_budget(opts: LoadOptions) -> int | None:
+    """How many Gaussians a load with ``opts`` needs at most (None: all of them).
+
+    With a point budget ``n_points``, one point per Gaussian and no voxel grid, the output is a
+    uniform random subset of the Gaussians, so a uniform subset of ``max(WORK_FACTOR * n_points,
+    WORK_MIN)`` of them carries the same information: loading a 1M-Gaussian splat then costs what
+    a 200k one does.
+    """
+    if opts.n_points is None or opts.samples_per_gaussian > 1 or opts.voxel_size is not None:
+        return None
+    return max(WORK_FACTOR * int(opts.n_points), WORK_MIN)
+
+
 def load_splat_file(path: str | os.PathLike, fmt: str, opts: LoadOptions) -> OrientedCloud:
     """Load a splat file as an oriented cloud of Gaussian centres (or samples), in input units.
 
     Steps, each counted in ``cloud.info``: drop non-finite Gaussians, those with opacity below
-    ``opts.min_opacity``, floater clusters holding less than ``opts.floater_ratio`` of the rest
+    ``opts.min_opacity``; keep a uniform subset of at most :func:`working_budget` of the rest
+    (``gaussians_used``); drop floater clusters holding less than ``opts.floater_ratio`` of the rest
     (:func:`floater_mask`) and statistical outliers (``opts.outlier_neighbors``,
     ``opts.outlier_std``, :func:`outlier_mask`). Normals: :func:`mixture_normals` of each Gaussian
     and its ``MIXTURE_NEIGHBORS`` nearest, signed by :func:`pointcvx.io.orient.orient_normals`
@@ -1045,6 +1064,11 @@ def load_splat_file(path: str | os.PathLike, fmt: str, opts: LoadOptions) -> Ori
             f"{p}: no Gaussian is left after filtering: all {total} are non-finite or have "
             f"opacity below min_opacity={opts.min_opacity}"
         )
+    budget = working_budget(opts)
+    if budget is not None and len(g["centers"]) > budget:
+        keep = np.sort(np.random.default_rng(opts.seed).choice(len(g["centers"]), budget, replace=False))
+        info["gaussians_used"] = budget
+        g = _subset(g, keep)
     ok = floater_mask(g["centers"], opts.floater_ratio)
     info["dropped_floaters"] = int((~ok).sum())
     g = _subset(g, ok)
