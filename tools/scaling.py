@@ -118,7 +118,7 @@ def main(argv: list[str] | None = None) -> int:
     sizes = [int(s) for s in args.sizes.split(",")]
     results = []
     for kind, n, path in write_inputs(args.shape, outdir, sizes):
-        for n_points in sorted({20000, n} if n <= args.full_max else {20000}):
+        for n_points in sorted({min(20000, n), n} if n <= args.full_max else {min(20000, n)}):
             r = run_child(path, n_points, args.features, args.timeout)
             row = {"input": kind, "size": n, "n_points": min(n_points, n),
                    "file_mb": round(path.stat().st_size / 2**20, 1),
