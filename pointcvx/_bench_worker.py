@@ -47,9 +47,9 @@ def _load_arrays(job: dict) -> tuple[np.ndarray, np.ndarray]:
 
 def write_obj(path: str | os.PathLike, hulls: list[tuple[np.ndarray, np.ndarray]]) -> int:
     """Write ``hulls`` ((k, 3) float vertices, (f, 3) int faces) as an OBJ with one ``o hull_NNN``
-    object per hull (:func:`pointcvx.result.obj_text`), skipping hulls without a face; return how
+    object per hull (:func:`pointcvx.export.obj_text`), skipping hulls without a face; return how
     many were written."""
-    from pointcvx.result import obj_text
+    from pointcvx.export import obj_text
 
     pairs = [(np.asarray(v, dtype=np.float64).reshape(-1, 3), np.asarray(f, dtype=np.int64).reshape(-1, 3))
              for v, f in hulls]

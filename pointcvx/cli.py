@@ -263,13 +263,13 @@ def _check_decompose_output(out: Path, fmt: str, per_hull: bool, args: argparse.
 
 
 def cmd_decompose(args: argparse.Namespace) -> int:
-    from .export import format_for
+    from .export import format_for, main_file
     from .pipeline import decompose
     from .simplify import hull_limits
 
     out = Path(args.output) if args.output else default_output(args.input, args.format)
     fmt = format_for(out, args.format)
-    per_hull = args.per_hull or fmt == "stl" or (fmt == "obj" and (out.suffix == "" or out.is_dir()))
+    per_hull = args.per_hull or main_file(out, fmt) is None
     if per_hull and fmt not in ("obj", "stl"):
         raise InputError(f"--per-hull applies to obj and stl outputs, not {fmt}")
     limits = hull_limits(args.target, args.max_hull_vertices)

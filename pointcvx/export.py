@@ -88,28 +88,30 @@ def main_file(path: str | os.PathLike, format: str, per_hull: bool = False) -> P
 
 
 # ------------------------------------------------------------------------------ mesh writers
-def obj_text(hulls) -> str:
-    """Wavefront OBJ text with one ``o hull_NNN`` object per hull (1-based global indices).
+def obj_text(hulls, names: list[str] | None = None, digits: int = 9, header: bool = True) -> str:
+    """Wavefront OBJ text with one ``o`` object per hull (1-based global indices).
 
-    ``hulls``: a sequence of ((v, 3) float vertices, (f, 3) int faces) pairs.
+    ``hulls``: a sequence of ((v, 3) float vertices, (f, 3) int faces) pairs; ``names``: the
+    objects' names (default ``hull_NNN``); ``digits``: significant digits of the coordinates (17
+    keeps every float64 exactly, so a hull read back still contains what it contained).
     """
-    lines = ["# pointcvx convex decomposition", f"# hulls {len(hulls)}"]
+    names = names if names is not None else [f"hull_{i:03d}" for i in range(len(hulls))]
+    lines = ["# pointcvx convex decomposition", f"# hulls {len(hulls)}"] if header else []
     offset = 1
-    for i, (vertices, faces) in enumerate(hulls):
-        lines.append(f"o hull_{i:03d}")
-        lines.extend(f"v {x:.9g} {y:.9g} {z:.9g}" for x, y, z in vertices)
-        lines.extend(f"f {a + offset} {b + offset} {c + offset}" for a, b, c in faces)
+    for name, (vertices, faces) in zip(names, hulls, strict=True):
+        lines.append(f"o {name}")
+        lines.extend(f"v {x:.{digits}g} {y:.{digits}g} {z:.{digits}g}"
+                     for x, y, z in np.asarray(vertices, dtype=np.float64))
+        lines.extend(f"f {a + offset} {b + offset} {c + offset}"
+                     for a, b, c in np.asarray(faces, dtype=np.int64))
         offset += len(vertices)
     return "\n".join(lines) + "\n"
 
 
 def mesh_obj_text(vertices: np.ndarray, faces: np.ndarray, name: str = "mesh") -> str:
-    """OBJ text of one mesh: (v, 3) float ``vertices``, (f, 3) int ``faces``; full float precision
-    (17 digits) so that a hull read back still contains what it contained."""
-    lines = [f"o {name}"]
-    lines.extend(f"v {x:.17g} {y:.17g} {z:.17g}" for x, y, z in np.asarray(vertices, dtype=np.float64))
-    lines.extend(f"f {a + 1} {b + 1} {c + 1}" for a, b, c in np.asarray(faces, dtype=np.int64))
-    return "\n".join(lines) + "\n"
+    """OBJ text of one mesh, (v, 3) float ``vertices`` and (f, 3) int ``faces``, at full float
+    precision (17 digits) and without the decomposition header."""
+    return obj_text([(vertices, faces)], names=[name], digits=17, header=False)
 
 
 def stl_bytes(vertices: np.ndarray, faces: np.ndarray, name: str = "pointcvx") -> bytes:
@@ -151,16 +153,13 @@ def mass_properties(hulls, density: float = 1000.0) -> tuple[float, np.ndarray, 
     """
     import trimesh
 
-    meshes = [(np.asarray(v, dtype=np.float64), np.asarray(f)) for v, f in hulls if len(f)]
+    meshes = [(np.asarray(v, dtype=np.float64), np.asarray(f, dtype=np.int64)) for v, f in hulls if len(f)]
     if not meshes:
         return 0.0, np.zeros(3), np.zeros((3, 3))
-    offsets = np.cumsum([0] + [len(v) for v, _ in meshes])[:-1]
-    union = trimesh.Trimesh(np.concatenate([v for v, _ in meshes]),
-                            np.concatenate([f + o for (_, f), o in zip(meshes, offsets, strict=True)]),
-                            process=False)
-    props = trimesh.triangles.mass_properties(union.triangles, density=density, skip_inertia=False)
+    triangles = np.concatenate([v[f] for v, f in meshes])
+    props = trimesh.triangles.mass_properties(triangles, density=density, skip_inertia=False)
     if not props["volume"] > 0:
-        return 0.0, union.vertices.mean(axis=0), np.zeros((3, 3))
+        return 0.0, np.concatenate([v for v, _ in meshes]).mean(axis=0), np.zeros((3, 3))
     return float(props["mass"]), np.asarray(props["center_mass"]), np.asarray(props["inertia"])
 
 

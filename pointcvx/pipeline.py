@@ -185,10 +185,11 @@ def decompose(
 
     if split not in SPLIT_METHODS:
         raise InputError(f"unknown split method {split!r}; expected one of {SPLIT_METHODS}")
+    limits = None
     if target is not None or max_hull_vertices is not None:
         from .simplify import hull_limits
 
-        hull_limits(target, max_hull_vertices)  # bad settings fail before any work
+        limits = hull_limits(target, max_hull_vertices)  # bad settings fail before any work
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     cloud = as_cloud(x, n_points=n_points, seed=seed, **load_options)
@@ -212,8 +213,8 @@ def decompose(
               "seed": int(seed), **load_options}
     timings["_start"] = t0
     result = cut_decomposition(decomposer, cloud, feats, params, timings, progress=progress)
-    if target is not None or max_hull_vertices is not None:
-        result = result.limit_hulls(target, max_hull_vertices)
+    if limits is not None:
+        result = result.limit_hulls(limits.target, limits.max_vertices, limits.max_faces)
     return result
 
 

@@ -108,13 +108,23 @@ class Decomposer:
     candidates : tuple of float
         Multipliers of ``blend`` tried at every split, plus the median plane across the longest
         axis; the proposal whose more concave child is least concave is kept.
+    max_split_points : int
+        Clustering runs on at most this many points of a part (the rest follow).
+    concavity_samples : int
+        Hull-surface and volume samples of the full concavity measure.
+    rank_points, rank_samples : int
+        The coarse concavity that ranks split proposals and merge candidates: at most
+        ``rank_points`` of a part's points and ``rank_samples`` samples.
+    refine : int
+        How many of the best-ranked proposals get the full measure; the best of those is kept.
     seed : int
     """
 
     def __init__(self, points, normals, features, solid, *, split: str = "auto",
                  is_mesh: bool = False, blend: float = 1.0, candidates: tuple = (0.5, 1.0, 2.0),
                  max_split_points: int = 3000, concavity_samples: int = 2000,
-                 rank_points: int = 1000, rank_samples: int = 300, seed: int = 0):
+                 rank_points: int = 1000, rank_samples: int = 300, refine: int = 2,
+                 seed: int = 0):
         if split not in SPLIT_METHODS:
             raise InputError(f"unknown split method {split!r}; expected one of {SPLIT_METHODS}")
         self.points = np.asarray(points, dtype=np.float64)
@@ -130,12 +140,10 @@ class Decomposer:
         self.candidates = tuple(float(c) for c in candidates) or (1.0,)
         self.max_split_points = int(max_split_points)
         self.concavity_samples = int(concavity_samples)
-        # Proposals are ranked on a coarse estimate (at most rank_points points of each child,
-        # rank_samples samples); only the winner's children get the full measure.
         self.rank_points = int(rank_points)
         self.rank_samples = int(rank_samples)
+        self.refine = int(refine)
         self.seed = int(seed)
-        self.refine = 2
         # A fixed random priority per point: a part's coarse subsample is its rank_points
         # points of lowest priority, the same points whichever proposal the part comes from.
         self._priority = np.random.default_rng(self.seed).permutation(len(self.points))
@@ -160,28 +168,24 @@ class Decomposer:
         samples.
         """
         self.evaluations += 1
-        others = self.points
-        n_samples = self.concavity_samples
+        n_samples = min(self.concavity_samples, self.rank_samples) if coarse else self.concavity_samples
+        cut = None
         if coarse and len(indices) > self.rank_points:
+            # The part's rank_points points of lowest priority: exactly its points of priority
+            # <= cut, so the same cut applied to the other points takes the same share of them.
             keep = np.argpartition(self._priority[indices], self.rank_points - 1)[: self.rank_points]
-            cut = self._priority[indices[keep]].max()
             indices = indices[keep]
-            others = self.points[self._priority <= cut]
-        if coarse:
-            n_samples = min(n_samples, self.rank_samples)
+            cut = self._priority[indices].max()
         pts = self.points[indices]
         if len(pts) < 4:
             return 0.0
         hull = convex_hull(pts)
         lo, hi = hull.bounds
-        near = np.all((others >= lo) & (others <= hi), axis=1)
-        if others is self.points:
-            near[indices] = False
-        else:  # the subsample's own points (all of priority <= cut) are in ``others`` too
-            own = np.zeros(len(self.points), dtype=bool)
-            own[indices] = True
-            near &= ~own[self._priority <= cut]
-        near = others[near]
+        near = np.all((self.points >= lo) & (self.points <= hi), axis=1)
+        if cut is not None:
+            near &= self._priority <= cut
+        near[indices] = False
+        near = self.points[near]
         if len(near):
             # Points at least a hair inside the hull (not those on a shared cut face).
             swallowed = near[hull_contains(hull, near, tol=-1e-3)]
@@ -345,9 +349,11 @@ class Decomposer:
             coo = self.graph.tocoo()
             a, b = label[coo.row], label[coo.col]
             pairs = {(int(x), int(y)) for x, y in zip(a[a < b], b[a < b], strict=True)}
+            def joint(pair: tuple[int, int]) -> np.ndarray:
+                return np.concatenate([parts[pair[0]], parts[pair[1]]])
+
             for pair in sorted(pairs - rough.keys()):
-                rough[pair] = self.concavity(np.concatenate([parts[pair[0]], parts[pair[1]]]),
-                                             coarse=True)
+                rough[pair] = self.concavity(joint(pair), coarse=True)
             # Candidates in order of their coarse estimate; the first whose full measure is
             # under the threshold is merged. Pairs whose estimate is far above it (beyond the
             # estimate's own error, see coarse_margin) are never measured in full.
@@ -356,7 +362,7 @@ class Decomposer:
             hopeful = [p for p in pairs if rough[p] <= 1.5 * threshold + self.coarse_margin(size[p])]
             for pair in sorted(hopeful, key=lambda p: (rough[p], p)):
                 if pair not in full:
-                    full[pair] = self.concavity(np.concatenate([parts[pair[0]], parts[pair[1]]]))
+                    full[pair] = self.concavity(joint(pair))
                 if full[pair] <= threshold:
                     chosen = pair
                     break

@@ -13,7 +13,6 @@ import numpy as np
 
 from .cloud import OrientedCloud
 from .errors import OutputError
-from .export import obj_text as obj_text  # noqa: F401 - re-exported (bench worker, callers)
 
 log = logging.getLogger(__name__)
 
