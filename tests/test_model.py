@@ -36,6 +36,7 @@ from pointcvx.model.network import (
 )
 from pointcvx.model.train import (
     batch_indices,
+    batch_items,
     collate,
     export_weights,
     random_rotation,
@@ -335,6 +336,38 @@ def test_batch_indices_shard_by_rank():
     b = [batch_indices(s, 10, 2, rank=1, world_size=2) for s in range(5)]
     flat = sorted(i for x in a + b for i in x)
     assert flat == sorted(list(range(10)) * 2)  # 20 draws = two epochs, each item once per epoch
+
+
+def test_batch_items_count_passes_over_the_data():
+    items = [batch_items(s, 4, 2) for s in range(4)]
+    assert [[e for _, e in it] for it in items] == [[0, 0], [0, 0], [1, 1], [1, 1]]
+    assert sorted(i for it in items[:2] for i, _ in it) == [0, 1, 2, 3]
+
+
+class _PassAwareData:
+    """Items that depend on the pass, like TripletDataset's augmentation (picklable for workers)."""
+
+    def __init__(self, items):
+        self.items = items
+
+    def __len__(self):
+        return len(self.items)
+
+    def item(self, i, epoch):
+        out = dict(self.items[i])
+        out["points"] = out["points"] * np.float32(1.0 + 0.05 * epoch)
+        return out
+
+
+def test_workers_give_the_same_training_as_none(tmp_path, dataset):
+    cfg = tiny_config(batch_size=2, lr=3e-3, checkpoint_every=100)
+    data = _PassAwareData(dataset)  # 4 items: steps 2 and 3 are the second pass
+    a = train(cfg, data, 4, tmp_path / "a")
+    b = train(cfg, data, 4, tmp_path / "b", workers=2)
+    la, lb = read_log(tmp_path / "a" / "log.csv"), read_log(tmp_path / "b" / "log.csv")
+    assert [r["loss"] for r in la] == pytest.approx([r["loss"] for r in lb], rel=1e-6)
+    for p, q in zip(a.parameters(), b.parameters(), strict=True):
+        assert torch.equal(p, q)
 
 
 # -------------------------------------------------------------------------- distributed (2 CPU processes)

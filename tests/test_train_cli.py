@@ -97,3 +97,25 @@ def test_train_and_model_errors(tmp_path, capsys):
             "-o", str(tmp_path / "h.obj")]
     assert main(args) == EXIT_INPUT
     assert "not a pointcvx model checkpoint" in capsys.readouterr().err
+
+
+def test_prepare_compact_with_sizes_then_train_with_workers(tmp_path, capsys):
+    import numpy as np
+
+    out = tmp_path / "compact"
+    args = ["prepare", str(out), "--procedural", "1", "--no-urdfs", "--points", "2000", "--anchors", "32",
+            "--negatives", "16", "--sdf-samples", "300", "--compact", "-q"]
+    assert main(args) == 0
+    with np.load(out / "proc_00000.npz") as raw:
+        assert raw["points"].shape == (2000, 3) and raw["points"].dtype == np.float16
+        assert "pool" not in raw.files  # the pool is the input points: not stored twice
+        assert 0 < len(raw["anchor"]) <= 32 and raw["negative"].shape == (len(raw["anchor"]), 16)
+        assert raw["sdf"].shape == (300,)
+    run = tmp_path / "run"
+    assert main(["train", str(out), "-o", str(run), "--config", "tiny", "--points", "1024", "--device", "cpu",
+                 "--steps", "2", "--workers", "1", "-q"]) == 0
+    assert [int(r["step"]) for r in read_log(run / "log.csv")] == [1, 2]
+    capsys.readouterr()
+    assert main(["prepare", str(tmp_path / "bad"), "--negatives", "1", "-q"]) == EXIT_INPUT
+    assert "--negatives must be at least 2" in capsys.readouterr().err
+    assert not (tmp_path / "bad").exists()

@@ -15,9 +15,11 @@ from pointcvx.training.data import (
     KEYS,
     TripletDataset,
     closed_surface,
+    load_sample,
     load_training_mesh,
     prepare_dataset,
     prepare_shape,
+    save_sample,
     training_meshes,
 )
 from pointcvx.training.shapes import random_solid
@@ -229,3 +231,36 @@ def test_augment_sample_deterministic_and_clean(proc_sample):
     assert np.array_equal(a["negative"], sample["negative"])
     fixed = aug.augment_sample(sample, np.random.default_rng(1), aug.AugmentConfig(n_points=1234))
     assert fixed["points"].shape == (1234, 3)
+
+
+# ---------------------------------------------------------------------------------- compact files
+def test_compact_sample_round_trip(tmp_path, proc_sample):
+    _, sample = proc_sample
+    save_sample(tmp_path / "full.npz", sample)
+    save_sample(tmp_path / "compact.npz", sample, compact=True)
+    full, compact = load_sample(tmp_path / "full.npz"), load_sample(tmp_path / "compact.npz")
+    assert set(compact) == set(full) == set(KEYS)
+    with np.load(tmp_path / "compact.npz") as raw:
+        assert "pool" not in raw.files and raw["points"].dtype == np.float16
+    for key in KEYS:
+        assert compact[key].dtype == full[key].dtype, key
+        assert compact[key].shape == full[key].shape, key
+        if np.issubdtype(full[key].dtype, np.integer):
+            assert np.array_equal(compact[key], full[key]), key
+        else:  # float16: 11 significant bits; coordinates and distances are within [-1, 1]
+            assert np.allclose(compact[key], full[key], rtol=1e-3, atol=1e-3), key
+    assert np.array_equal(compact["pool"], compact["points"])
+    assert compact["pool"] is not compact["points"]  # augmenting the input must not move the pool
+    assert (tmp_path / "compact.npz").stat().st_size < 0.5 * (tmp_path / "full.npz").stat().st_size
+
+
+def test_dataset_augments_each_pass_differently(tmp_path, proc_sample):
+    _, sample = proc_sample
+    save_sample(tmp_path / "a.npz", sample)
+    ds = TripletDataset(tmp_path, augment=True, seed=3)
+    first, again, second = ds.item(0, 0), ds.item(0, 0), ds.item(0, 1)
+    assert all(np.array_equal(first[k], again[k]) for k in first)
+    assert np.array_equal(ds[0]["points"], first["points"])  # __getitem__ is the current pass
+    assert not np.allclose(first["points"][:50], second["points"][:50])
+    assert not np.allclose(first["pool"], second["pool"])  # a new rotation moves the supervision too
+    assert np.array_equal(first["anchor"], second["anchor"])

@@ -247,21 +247,95 @@ def cosine_lambda(total_steps: int, warmup_steps: int = 0, min_ratio: float = 0.
     return f
 
 
-def batch_indices(step: int, n_items: int, batch_size: int, rank: int = 0, world_size: int = 1,
-                  seed: int = 0) -> list[int]:
-    """Dataset indices of ``rank``'s share of global batch ``step`` (0-based).
+def batch_items(step: int, n_items: int, batch_size: int, rank: int = 0, world_size: int = 1,
+                seed: int = 0) -> list[tuple[int, int]]:
+    """``(index, epoch)`` of each item of ``rank``'s share of global batch ``step`` (0-based).
 
     Items are drawn epoch by epoch from a seeded permutation, the global batch of
     ``batch_size * world_size`` items split by rank (``DistributedSampler``-style), so a resumed
-    run sees exactly the items an uninterrupted one would.
+    run sees exactly the items an uninterrupted one would. ``epoch`` is the pass over the data
+    the item belongs to; datasets augment each pass differently.
     """
     out = []
     for j in range(batch_size):
         pos = (step * world_size + rank) * batch_size + j
         epoch, k = divmod(pos, n_items)
         perm = np.random.default_rng([seed, epoch]).permutation(n_items)
-        out.append(int(perm[k]))
+        out.append((int(perm[k]), int(epoch)))
     return out
+
+
+def batch_indices(step: int, n_items: int, batch_size: int, rank: int = 0, world_size: int = 1,
+                  seed: int = 0) -> list[int]:
+    """Dataset indices of :func:`batch_items`."""
+    return [i for i, _ in batch_items(step, n_items, batch_size, rank, world_size, seed)]
+
+
+def fetch_item(dataset, index: int, epoch: int) -> dict[str, np.ndarray]:
+    """``dataset.item(index, epoch)`` where the dataset augments per pass, else ``dataset[index]``."""
+    item = getattr(dataset, "item", None)
+    return item(index, epoch) if callable(item) else dataset[index]
+
+
+_WORKER_DATASET = None
+
+
+def _init_worker(dataset) -> None:
+    global _WORKER_DATASET
+    _WORKER_DATASET = dataset
+    torch.set_num_threads(1)
+
+
+def _worker_fetch(index: int, epoch: int) -> dict[str, np.ndarray]:
+    return fetch_item(_WORKER_DATASET, index, epoch)
+
+
+class BatchLoader:
+    """The items of successive training steps, read in ``workers`` processes ahead of use
+    (``prefetch`` steps ahead), or in this process with ``workers=0``. Deterministic: item
+    ``(index, epoch)`` is the same array whichever process reads it.
+
+    Use as a context manager; :meth:`get` returns the list of items of one step.
+    """
+
+    def __init__(self, dataset, batch_size: int, rank: int, world_size: int, seed: int,
+                 workers: int = 0, prefetch: int = 4):
+        self.dataset, self.batch_size, self.rank, self.world, self.seed = (
+            dataset, batch_size, rank, world_size, seed)
+        self.workers, self.prefetch = int(workers), max(1, int(prefetch))
+        self._pool = None
+        self._pending: dict[int, list] = {}
+
+    def __enter__(self) -> BatchLoader:
+        if self.workers > 0:
+            import multiprocessing as mp
+            from concurrent.futures import ProcessPoolExecutor
+
+            self._pool = ProcessPoolExecutor(self.workers, mp_context=mp.get_context("spawn"),
+                                             initializer=_init_worker, initargs=(self.dataset,))
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self._pool is not None:
+            for futures in self._pending.values():
+                for f in futures:
+                    f.cancel()
+            self._pool.shutdown(wait=True, cancel_futures=True)
+            self._pool = None
+
+    def _items(self, step: int) -> list[tuple[int, int]]:
+        return batch_items(step, len(self.dataset), self.batch_size, self.rank, self.world, self.seed)
+
+    def get(self, step: int) -> list[dict[str, np.ndarray]]:
+        if self._pool is None:
+            return [fetch_item(self.dataset, i, e) for i, e in self._items(step)]
+        for s in range(step, step + self.prefetch):
+            if s not in self._pending:
+                self._pending[s] = [self._pool.submit(_worker_fetch, i, e) for i, e in self._items(s)]
+        for s in [s for s in self._pending if s < step]:
+            for f in self._pending.pop(s):
+                f.cancel()
+        return [f.result() for f in self._pending.pop(step)]
 
 
 def distributed_context(device: str | torch.device | None) -> tuple[int, int, torch.device]:
@@ -289,7 +363,7 @@ def distributed_context(device: str | torch.device | None) -> tuple[int, int, to
 def train(config: ModelConfig, dataset, steps: int, out_dir: str | os.PathLike, *, resume: bool = True,
           log_csv: bool = True, device: str | torch.device | None = None,
           total_steps: int | None = None, init: str | os.PathLike | None = None,
-          progress=None) -> FeatureNet:
+          progress=None, workers: int = 0) -> FeatureNet:
     """Train (or continue training) a :class:`FeatureNet` up to global step ``steps``.
 
     Parameters
@@ -304,6 +378,8 @@ def train(config: ModelConfig, dataset, steps: int, out_dir: str | os.PathLike, 
     init : checkpoint whose weights start a new run (fine-tuning); the optimiser, schedule and
         step start fresh. Ignored when the run resumes from its own ``last.pt``.
     progress : optional ``callable(step, steps, losses)`` called on rank 0 after every step.
+    workers : processes that read and augment the items of the next steps ahead of use (0: read
+        them in this process). The batches are the same for any count.
 
     Returns
     -------
@@ -356,11 +432,12 @@ def train(config: ModelConfig, dataset, steps: int, out_dir: str | os.PathLike, 
         writer = csv.writer(fh)
         if new:
             writer.writerow(LOG_FIELDS)
+    loader = BatchLoader(dataset, tc.batch_size, rank, world, tc.seed, workers, prefetch=2 * workers)
     try:
+        loader.__enter__()
         while step < steps:
             t0 = time.perf_counter()
-            idx = batch_indices(step, len(dataset), tc.batch_size, rank, world, tc.seed)
-            batch = collate([dataset[i] for i in idx], device)
+            batch = collate(loader.get(step), device)
             lr = optimizer.param_groups[0]["lr"]
             losses = training_step(net, batch, optimizer, tc.tau, tc.sdf_weight, tc.sdf_clip, tc.grad_clip,
                                    tc.amp)
@@ -387,6 +464,7 @@ def train(config: ModelConfig, dataset, steps: int, out_dir: str | os.PathLike, 
                         save_checkpoint(out / f"step_{step:07d}.pt", model, optimizer, step, config,
                                         scheduler)
     finally:
+        loader.__exit__(None, None, None)
         if fh is not None:
             fh.close()
         if board is not None:
