@@ -88,12 +88,12 @@ def main_file(path: str | os.PathLike, format: str, per_hull: bool = False) -> P
 
 
 # ------------------------------------------------------------------------------ mesh writers
-def obj_text(hulls, names: list[str] | None = None, digits: int = 9, header: bool = True) -> str:
+def obj_text(hulls, names: list[str] | None = None, digits: int = 17, header: bool = True) -> str:
     """Wavefront OBJ text with one ``o`` object per hull (1-based global indices).
 
     ``hulls``: a sequence of ((v, 3) float vertices, (f, 3) int faces) pairs; ``names``: the
-    objects' names (default ``hull_NNN``); ``digits``: significant digits of the coordinates (17
-    keeps every float64 exactly, so a hull read back still contains what it contained).
+    objects' names (default ``hull_NNN``); ``digits``: significant digits of the coordinates (the
+    default 17 keeps every float64 exactly, so a hull read back still contains what it contained).
     """
     names = names if names is not None else [f"hull_{i:03d}" for i in range(len(hulls))]
     lines = ["# pointcvx convex decomposition", f"# hulls {len(hulls)}"] if header else []
@@ -111,7 +111,7 @@ def obj_text(hulls, names: list[str] | None = None, digits: int = 9, header: boo
 def mesh_obj_text(vertices: np.ndarray, faces: np.ndarray, name: str = "mesh") -> str:
     """OBJ text of one mesh, (v, 3) float ``vertices`` and (f, 3) int ``faces``, at full float
     precision (17 digits) and without the decomposition header."""
-    return obj_text([(vertices, faces)], names=[name], digits=17, header=False)
+    return obj_text([(vertices, faces)], names=[name], header=False)
 
 
 def stl_bytes(vertices: np.ndarray, faces: np.ndarray, name: str = "pointcvx") -> bytes:

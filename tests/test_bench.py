@@ -286,3 +286,22 @@ def test_pool_worker_of_a_dead_benchmark_stops(tmp_path):
     while flag.read_text() == "started" and time.time() < deadline:
         time.sleep(0.1)
     assert flag.read_text() == "stopped"
+
+
+def test_worker_warms_imports_and_model_before_the_timed_call():
+    """The timed pointcvx call must not pay library imports or the one-time weight load."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys\n"
+        "from pointcvx import _bench_worker as w\n"
+        "from pointcvx.pipeline import _cached_model\n"
+        "w._warm_pointcvx({'features': 'model', 'model': None})\n"
+        "missing = [m for m in ('open3d', 'sklearn.cluster', 'skimage.measure', 'trimesh', 'torch')\n"
+        "           if m not in sys.modules]\n"
+        "print(missing, _cached_model.cache_info().currsize)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split("\n")[0] == "[] 1"

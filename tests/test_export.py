@@ -169,7 +169,10 @@ def test_every_format_writes_what_it_promises(result, tmp_path):
     # combined OBJ: one object per hull
     out = result.export(tmp_path / "t.obj")
     assert out == [tmp_path / "t.obj"] and out[0].read_text().count("\no hull_") == n
-    assert len(load_hulls(out[0])) == n
+    back = load_hulls(out[0])
+    assert len(back) == n
+    for v, h in zip(back, result.hulls, strict=True):  # full precision: read-back hulls are the hulls
+        assert np.array_equal(np.asarray(v, dtype=np.float64), h.vertices)
     # per-hull STL in the folder named by the stem
     stl = result.export(tmp_path / "parts.stl")
     assert [p.name for p in stl] == [f"hull_{i:03d}.stl" for i in range(n)]
