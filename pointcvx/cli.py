@@ -168,6 +168,16 @@ def build_parser() -> argparse.ArgumentParser:
     prep.add_argument("--max-urdfs", type=int, default=None, metavar="N", help="use at most N meshes")
     prep.add_argument("--jobs", type=int, default=1, help="worker processes (default 1)")
     prep.add_argument("--seed", type=int, default=0)
+    prep.add_argument("--points", type=int, default=20000, metavar="N",
+                      help="surface samples per shape, also the triplet pool (default 20000)")
+    prep.add_argument("--anchors", type=int, default=512, metavar="N",
+                      help="convex-pair anchors per shape (default 512)")
+    prep.add_argument("--negatives", type=int, default=256, metavar="N",
+                      help="negatives per anchor, half hard and half uniform (default 256)")
+    prep.add_argument("--sdf-samples", type=int, default=12288, metavar="N",
+                      help="SDF supervision points per shape, 2/3 near the surface (default 12288)")
+    prep.add_argument("--compact", action="store_true",
+                      help="float16 arrays and no duplicate pool: about a third of the bytes")
     prep.add_argument("-q", "--quiet", action="store_true", help="no progress bar, no summary")
     prep.add_argument("-v", "--verbose", action="store_true", help="log details to stderr")
     prep.set_defaults(func=cmd_prepare)
@@ -193,6 +203,9 @@ def build_parser() -> argparse.ArgumentParser:
                     "stop early and be continued later on the same schedule")
     tr.add_argument("--points", type=int, default=4096, help="input points per shape (4096)")
     tr.add_argument("--device", default=None, help="cpu, cuda, cuda:1 ... (default: best available)")
+    tr.add_argument("--workers", type=int, default=0, metavar="N",
+                    help="processes that read and augment the next batches ahead (default 0: none); "
+                    "the batches are the same for any count")
     tr.add_argument("--seed", type=int, default=0)
     tr.add_argument("--no-resume", action="store_true", help="start over even if RUN has a checkpoint")
     tr.add_argument("--init", metavar="CKPT", default=None,
@@ -219,9 +232,11 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("-v", "--verbose", action="store_true", help="log details to stderr")
     ev.set_defaults(func=cmd_evaluate)
 
+    from .batch import add_parser as add_batch
     from .bench import add_parser as add_bench
 
     add_bench(sub)
+    add_batch(sub)
     return parser
 
 
@@ -316,13 +331,22 @@ def cmd_decompose(args: argparse.Namespace) -> int:
 
 
 def cmd_prepare(args: argparse.Namespace) -> int:
+    from .errors import InputError
     from .training.data import prepare_dataset
+
+    for flag, value, low in (("--points", args.points, 64), ("--anchors", args.anchors, 1),
+                             ("--negatives", args.negatives, 2), ("--sdf-samples", args.sdf_samples, 0)):
+        if value < low:
+            raise InputError(f"{flag} must be at least {low}, got {value}")
 
     bars = _Bars(not args.quiet)
     manifest = prepare_dataset(
         args.outdir, args.procedural, use_urdfs=not args.no_urdfs, seed=args.seed, jobs=args.jobs,
-        urdf_root=args.urdfs, max_urdfs=args.max_urdfs,
+        urdf_root=args.urdfs, max_urdfs=args.max_urdfs, compact=args.compact,
         progress=lambda done, total, entry: bars("prepare", done, total),
+        n_points=args.points, n_anchors=args.anchors, n_candidates=max(512, 2 * args.negatives),
+        n_hard=args.negatives // 2, n_uniform=args.negatives - args.negatives // 2,
+        n_sdf_near=args.sdf_samples * 2 // 3, n_sdf_uniform=args.sdf_samples - args.sdf_samples * 2 // 3,
     )
     bars.close()
     ok = sum(1 for e in manifest.values() if e.get("ok"))
@@ -363,7 +387,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     bar = LazyBar(not args.quiet, "train", "step", leave=True)
     try:
         train(config, dataset, args.steps, args.out, resume=not args.no_resume, device=args.device,
-              init=args.init, total_steps=args.schedule_steps,
+              init=args.init, total_steps=args.schedule_steps, workers=args.workers,
               progress=lambda step, steps, losses: bar.set(step, steps, f"loss {losses['loss']:.3f}"))
     except ValueError as exc:
         raise InputError(str(exc)) from None

@@ -77,6 +77,32 @@ def _cached_model(path: str, mtime_ns: int, size: int):
     return load_model(path)
 
 
+def load_cached_model(model: str | os.PathLike | None = None):
+    """The feed-forward network of checkpoint ``model`` (default: the bundled one), loaded once
+    per process and reused by every later :func:`decompose` call (long-lived batch workers load it
+    when they start).
+
+    Raises
+    ------
+    PointcvxError
+        No ``model`` given and this build ships none.
+    InputError
+        ``model`` is missing or not a pointcvx checkpoint.
+    """
+    path = Path(model) if model is not None else bundled_model_path()
+    if path is None:
+        raise PointcvxError("this build ships no feed-forward model yet: train one with "
+                            "`pointcvx train` and pass --model PATH, or use --features optimize")
+    if not path.is_file():
+        raise InputError(f"{path}: no such model checkpoint")
+    try:
+        stat = path.stat()
+        return _cached_model(str(path.resolve()), stat.st_mtime_ns, stat.st_size)
+    except (KeyError, RuntimeError, ValueError, EOFError, pickle.UnpicklingError) as exc:
+        first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        raise InputError(f"{path}: not a pointcvx model checkpoint ({first[:120]})") from None
+
+
 def compute_features(cloud: OrientedCloud, solid, *, method: str = "optimize", seed: int = 0,
                      steps: int = 300, model: str | os.PathLike | None = None, views: int = 1,
                      progress: Progress | None = None):
@@ -88,20 +114,9 @@ def compute_features(cloud: OrientedCloud, solid, *, method: str = "optimize", s
     if method not in FEATURE_METHODS:
         raise InputError(f"unknown feature method {method!r}; expected one of {FEATURE_METHODS}")
     if method == "model":
-        path = Path(model) if model is not None else bundled_model_path()
-        if path is None:
-            raise PointcvxError("this build ships no feed-forward model yet: train one with "
-                                "`pointcvx train` and pass --model PATH, or use --features optimize")
-        if not path.is_file():
-            raise InputError(f"{path}: no such model checkpoint")
         from .model.source import ModelFeatureSource
 
-        try:
-            stat = path.stat()
-            net = _cached_model(str(path.resolve()), stat.st_mtime_ns, stat.st_size)
-        except (KeyError, RuntimeError, ValueError, EOFError, pickle.UnpicklingError) as exc:
-            first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
-            raise InputError(f"{path}: not a pointcvx model checkpoint ({first[:120]})") from None
+        net = load_cached_model(model)
         source = ModelFeatureSource(net, cloud.points, cloud.normals, views=views)
         return source, source.features(cloud.points)
     from .features import sample_triplets
