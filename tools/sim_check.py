@@ -1,7 +1,7 @@
-"""MuJoCo step time and behaviour of a decomposition against simpler collision geometry.
+"""MuJoCo (or Newton) step time and behaviour of a decomposition against simpler collision geometry.
 
-    python tools/sim_check.py [SHAPE] [--points 4000] [--balls 9] [--seconds 2] [--repeat 5]
-                              [--coacd] [--json OUT.json]
+    python tools/sim_check.py [SHAPE] [--engine mujoco|newton] [--points 4000] [--balls 9]
+                              [--seconds 2] [--repeat 5] [--coacd] [--json OUT.json] [--worlds 1]
 
 SHAPE (default ``../shared/data/dev/objects/mug.obj``, in metres) is decomposed once with the
 bundled model (seed 0) and written with pointcvx's MJCF export. Each collision variant is then
@@ -23,6 +23,30 @@ Variants:
 
 Printed: per variant and scene, the mean wall time of ``mj_step`` (best of ``--repeat`` runs,
 single thread), mean contacts per step, and balls inside.
+
+``--engine newton`` (``pip install newton``: Newton and Warp, run on Warp's CPU device) builds the
+same scenes in Newton with XPBD (10 iterations) and Newton's default collision pipeline, 2 ms
+steps, the body's mass properties taken from the decomposition for every variant (the input mesh
+may be open), the drop tilted 0.1 rad instead of 0.3 (at 0.3 a mug tips over onto its side with
+some variants and not others, and the timings would compare different scenes), and variants:
+
+- ``pointcvx``: one convex-mesh shape per hull (``add_shape_convex_hull``);
+- ``pointcvx newton``: the same hulls capped at 64 vertices (``limit_hulls("newton")``);
+- ``original mesh``: the input as ONE triangle-mesh shape (``add_shape_mesh``): Newton collides
+  with the concave mesh itself, so this is the real-shape baseline of the paper's comparison;
+- ``single convex hull``: the decomposition recut to one hull (what MuJoCo makes of a mesh);
+- ``coacd`` as above.
+
+With ``--worlds N`` every scene is simulated N times at once, one world per copy (as Newton is
+used for reinforcement learning); contacts and results are then for all worlds and the first one.
+
+Printed per variant and scene: the median over ``--repeat`` runs (after one warm-up run that
+compiles Warp's kernels) of the CPU time per step (collision + solver) and of the collision
+pipeline alone (the stepping thread's CPU time: Warp's CPU kernels run on it), the wall time per
+step, mean contacts per step, balls inside, and for ``drop`` whether the body ends at rest and
+upright; a reference row (one ball resting on the ground: Newton's fixed cost per step on the
+CPU, spent in Python launching kernels one by one); then the ratios original mesh / pointcvx,
+per step, in collision, and in collision above the reference's.
 """
 
 from __future__ import annotations
@@ -107,14 +131,19 @@ def balls_inside(model, data, top: float, bounds: np.ndarray, balls: int) -> int
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("shape", nargs="?", default=str(MUG))
+    ap.add_argument("--engine", choices=("mujoco", "newton"), default="mujoco")
     ap.add_argument("--points", type=int, default=4000)
     ap.add_argument("--balls", type=int, default=9)
     ap.add_argument("--seconds", type=float, default=2.0)
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--coacd", action="store_true", help="add CoACD's hulls ([baselines] extra)")
     ap.add_argument("--json", metavar="OUT", help="also write the numbers as JSON")
+    ap.add_argument("--worlds", type=int, default=1,
+                    help="Newton: simulate this many copies of each scene at once, one world each")
     args = ap.parse_args(argv)
 
+    if args.engine == "newton":
+        return newton_main(args)
     import mujoco
     import trimesh
 
@@ -168,6 +197,197 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{r['variant']:<34} {r['scene']:<6} {r['step_us']:>8.1f} {r['contacts']:>9.1f}  {extra}")
     if args.json:
         Path(args.json).write_text(json.dumps({"shape": args.shape, "rows": rows}, indent=2) + "\n")
+    return 0
+
+
+# ------------------------------------------------------------------------------------------ Newton
+NEWTON_DT, NEWTON_ITERATIONS = 0.002, 10
+NEWTON_TILT = 0.1  # radians: at MuJoCo's 0.3 the mug tips over in XPBD for some variants, not others
+
+
+def newton_worlds(builder, worlds: int):
+    """A finalized CPU model: ``worlds`` copies of ``builder``, each its own world, and the ground."""
+    import newton
+
+    root = newton.ModelBuilder()  # z up
+    root.replicate(builder, worlds)  # all at the origin: separate worlds do not collide
+    root.add_ground_plane()
+    return root.finalize(device="cpu")
+
+
+def newton_model(hulls, kind: str, top: float, bounds: np.ndarray, balls: int, mass_props,
+                 triangle_mesh: bool = False, worlds: int = 1):
+    """A finalized Newton model (CPU): the ground, the object (free for ``drop``, tilted by only
+    ``NEWTON_TILT``; fixed for ``balls``) with one convex shape per ((v, 3), (f, 3)) hull, or one
+    triangle-mesh shape for ``triangle_mesh``, and for ``balls`` a grid of 1 cm balls as in
+    :func:`scene`; ``worlds`` copies of that, each its own world."""
+    import newton
+    import warp as wp
+
+    builder = newton.ModelBuilder()
+    if kind == "drop":
+        tilt = wp.quat_from_axis_angle(wp.vec3(1.0, 0.0, 0.0), NEWTON_TILT)
+        mass, com, inertia = mass_props
+        body = builder.add_body(xform=wp.transform(wp.vec3(0.0, 0.0, 1.5 * top), tilt), mass=mass,
+                                com=wp.vec3(*com), inertia=wp.mat33(*np.ravel(inertia)), lock_inertia=True,
+                                label="object")
+    else:
+        body = -1  # static
+    cfg = newton.ModelBuilder.ShapeConfig(density=0.0)  # mass as given above
+    add = builder.add_shape_mesh if triangle_mesh else builder.add_shape_convex_hull
+    for v, f in hulls:
+        shape = newton.Mesh(np.asarray(v, np.float32), np.asarray(f, np.int32).ravel(), compute_inertia=False,
+                            maxhullvert=0)
+        add(body, mesh=shape, cfg=cfg)
+    if kind == "balls":
+        side = int(np.ceil(np.sqrt(balls)))
+        centre = bounds.mean(axis=0)
+        span = 0.25 * (bounds[1] - bounds[0]).min()
+        for k in range(balls):
+            i, j = divmod(k, side)
+            offset = (np.array([i, j]) - (side - 1) / 2) * (span / max(side - 1, 1))
+            at = wp.vec3(centre[0] + offset[0], centre[1] + offset[1], top + 0.05 + 0.025 * k)
+            ball = builder.add_body(xform=wp.transform(at, wp.quat_identity()), label=f"ball_{k}")
+            builder.add_shape_sphere(ball, radius=BALL)
+    return newton_worlds(builder, worlds)
+
+
+def newton_reference_model(worlds: int = 1):
+    """Newton's fixed cost per step on this machine: the ground and one 1 cm ball resting on it
+    (in each of ``worlds`` worlds)."""
+    import newton
+    import warp as wp
+
+    builder = newton.ModelBuilder()
+    ball = builder.add_body(xform=wp.transform(wp.vec3(0.0, 0.0, BALL), wp.quat_identity()), label="ball")
+    builder.add_shape_sphere(ball, radius=BALL)
+    return newton_worlds(builder, worlds)
+
+
+def newton_run(model, seconds: float) -> tuple[float, float, float, np.ndarray, np.ndarray, float]:
+    """(CPU seconds per step, of which collision, mean contacts per step, final body_q, body_qd,
+    wall seconds per step). Warp runs CPU kernels synchronously on the calling thread, so that
+    thread's CPU time is the cost of a step, and less disturbed than wall time by other processes."""
+    import newton
+
+    solver = newton.solvers.SolverXPBD(model, iterations=NEWTON_ITERATIONS)
+    pipeline = newton.CollisionPipeline(model)
+    contacts = pipeline.contacts()
+    state, nxt, control = model.state(), model.state(), model.control()
+    steps = int(round(seconds / NEWTON_DT))
+    collide = total = wall = 0.0
+    count = 0
+    for _ in range(steps):
+        w0, t0 = time.perf_counter(), time.thread_time()
+        state.clear_forces()
+        pipeline.collide(state, contacts)
+        t1 = time.thread_time()
+        solver.step(state, nxt, control, contacts, NEWTON_DT)
+        t2, w2 = time.thread_time(), time.perf_counter()
+        state, nxt = nxt, state
+        collide += t1 - t0
+        total += t2 - t0
+        wall += w2 - w0
+        count += int(contacts.rigid_contact_count.numpy()[0])
+    return (total / steps, collide / steps, count / steps, state.body_q.numpy(), state.body_qd.numpy(),
+            wall / steps)
+
+
+def newton_main(args) -> int:
+    import newton
+    import trimesh
+    import warp as wp
+
+    import pointcvx
+    from pointcvx.export import mass_properties
+
+    wp.config.quiet = True
+    wp.config.enable_backward = False  # no gradients: nearly half the compile time
+    wp.init()
+    mesh = trimesh.load(args.shape, force="mesh")
+    bounds = np.asarray(mesh.bounds)
+    top = float(bounds[1, 2])
+    t = time.perf_counter()
+    result = pointcvx.decompose(args.shape, features="model", n_points=args.points, seed=0)
+    decompose_s = time.perf_counter() - t
+    limited = result.limit_hulls("newton")
+    single = result.recut(max_hulls=1)
+    pairs = [(h.vertices, h.faces) for h in result.hulls]
+    mass_props = mass_properties(pairs)
+    variants = {  # label: (hulls, as one triangle mesh)
+        f"pointcvx ({len(result)} hulls)": (pairs, False),
+        f"pointcvx newton ({len(limited)} hulls)": ([(h.vertices, h.faces) for h in limited.hulls], False),
+        "original mesh (triangle mesh)": ([(np.asarray(mesh.vertices), np.asarray(mesh.faces))], True),
+        "single convex hull": ([(h.vertices, h.faces) for h in single.hulls], False),
+    }
+    if args.coacd:
+        import coacd
+
+        coacd.set_log_level("error")
+        parts = coacd.run_coacd(coacd.Mesh(np.asarray(mesh.vertices), np.asarray(mesh.faces)), seed=0)
+        variants[f"coacd ({len(parts)} hulls)"] = ([(np.asarray(v), np.asarray(f)) for v, f in parts], False)
+    models = {}
+    t = time.perf_counter()
+    for label, (hulls, triangles) in variants.items():
+        for kind in ("drop", "balls"):
+            model = newton_model(hulls, kind, top, bounds, args.balls, mass_props, triangles, args.worlds)
+            newton_run(model, 0.1)  # warm-up: Warp compiles (or loads) its kernels on first use
+            models[label, kind] = model
+    reference = "reference: 1 ball on the ground"
+    models[reference, "-"] = newton_reference_model(args.worlds)
+    newton_run(models[reference, "-"], 0.1)
+    setup_s = time.perf_counter() - t
+    runs: dict[tuple[str, str], list] = {key: [] for key in models}
+    for _ in range(args.repeat):  # interleaved, so load changes hit every variant alike
+        for key, model in models.items():
+            runs[key].append(newton_run(model, args.seconds))
+    rows = []
+    for (label, kind), results in runs.items():
+        step, collide, contacts = (float(np.median([r[i] for r in results])) for i in range(3))
+        body_q, body_qd = results[-1][3], results[-1][4]
+        wall = float(np.median([r[5] for r in results]))
+        row = {"variant": label, "scene": kind, "step_us": round(step * 1e6, 1),
+               "collide_us": round(collide * 1e6, 1), "wall_us": round(wall * 1e6, 1),
+               "contacts": round(contacts, 1)}
+        if kind == "-":
+            pass
+        elif kind == "balls":
+            p = body_q[:args.balls, :3]  # the first world's
+            inside = (p[:, 2] < top - BALL) & np.all(p[:, :2] > bounds[0, :2], axis=1) \
+                & np.all(p[:, :2] < bounds[1, :2], axis=1)
+            row["balls_inside"] = f"{int(inside.sum())}/{args.balls}"
+        else:
+            x, y = body_q[0, 3:5]  # the first world's; quaternion xyzw: body z has world z 1 - 2(x^2 + y^2)
+            row["tilt_deg"] = round(float(np.degrees(np.arccos(np.clip(1 - 2 * (x * x + y * y), -1, 1)))), 1)
+            row["at_rest"] = bool(np.abs(body_qd[0]).max() < 1e-2)
+        rows.append(row)
+    print(f"{Path(args.shape).name}: decomposed in {decompose_s:.1f} s; Newton {newton.__version__}, "
+          f"Warp {wp.__version__} on the CPU, XPBD {NEWTON_ITERATIONS} iterations, timestep "
+          f"{NEWTON_DT * 1e3:g} ms, {args.worlds} world(s), median of {args.repeat}; models built, kernels "
+          f"loaded in {setup_s:.0f} s")
+    print("CPU time of the stepping thread, us per step (collision + solver), of which collision; wall time")
+    print(f"{'variant':<34} {'scene':<6} {'us/step':>8} {'collide':>8} {'wall':>8} {'contacts':>9}  result")
+    for r in rows:
+        rest = "at rest" if r.get("at_rest") else "moving"
+        extra = r.get("balls_inside") or (f"{rest}, tilt {r['tilt_deg']:g} deg" if "tilt_deg" in r else "")
+        print(f"{r['variant']:<34} {r['scene']:<6} {r['step_us']:>8.1f} {r['collide_us']:>8.1f} "
+              f"{r['wall_us']:>8.1f} {r['contacts']:>9.1f}  {extra}")
+    ours, raw = next(iter(variants)), "original mesh (triangle mesh)"
+    step = {(r["variant"], r["scene"]): r for r in rows}
+    ratios = {}
+    base = step[reference, "-"]
+    for kind in ("drop", "balls"):
+        a, b = step[raw, kind], step[ours, kind]
+        above = (a["collide_us"] - base["collide_us"]) / max(b["collide_us"] - base["collide_us"], 1e-9)
+        ratios[kind] = {"step": round(a["step_us"] / b["step_us"], 2),
+                        "collide": round(a["collide_us"] / b["collide_us"], 2),
+                        "collide_above_reference": round(above, 2)}
+        print(f"original mesh / pointcvx, {kind}: {ratios[kind]['step']:.2f}x per step, "
+              f"{ratios[kind]['collide']:.2f}x in collision, "
+              f"{ratios[kind]['collide_above_reference']:.2f}x in collision above the reference's")
+    if args.json:
+        Path(args.json).write_text(json.dumps({"shape": args.shape, "engine": "newton", "worlds": args.worlds,
+                                               "rows": rows, "ratios": ratios}, indent=2) + "\n")
     return 0
 
 
