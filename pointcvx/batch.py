@@ -1313,9 +1313,8 @@ def _summary(rows: list[dict], finished: int, skipped: int, wall: float, startup
 # ------------------------------------------------------------------------------------ CLI
 def add_parser(sub) -> argparse.ArgumentParser:
     """Add ``batch`` to ``sub`` (an argparse subparsers object); return it."""
-    from .cli import _add_load_options
+    from .cli import _add_load_options, add_decomposition_options
     from .export import FORMATS
-    from .simplify import TARGETS
 
     p = sub.add_parser(
         "batch",
@@ -1346,20 +1345,7 @@ def add_parser(sub) -> argparse.ArgumentParser:
                    "of the machine's memory / workers; 0: none)")
     p.add_argument("--format", choices=list(FORMATS), default="obj",
                    help="output format per asset (default obj: one OBJ, an 'o' per hull)")
-    p.add_argument("--target", choices=list(TARGETS), default=None,
-                   help="keep every hull within this engine's caps (as `pointcvx decompose`)")
-    p.add_argument("--max-hull-vertices", type=int, default=None, metavar="N",
-                   help="at most N vertices per hull")
-    p.add_argument("-t", "--threshold", type=float, default=0.1,
-                   help="concavity threshold in the normalised [-1,1]^3 frame (default 0.1)")
-    p.add_argument("-k", "--max-hulls", type=int, default=64, help="hull budget (default 64)")
-    p.add_argument("--features", choices=["optimize", "model"], default="optimize",
-                   help="optimise a feature field per shape, or use the model (loaded once per worker)")
-    p.add_argument("--model", metavar="CKPT", help="model checkpoint for --features model")
-    p.add_argument("--views", type=int, default=1, metavar="V",
-                   help="with --features model: orientations encoded per shape (default 1)")
-    p.add_argument("--split", choices=["auto", "kmeans", "ward"], default="auto")
-    p.add_argument("--no-merge", action="store_true", help="skip the merge pass")
+    add_decomposition_options(p)
     p.add_argument("--skip-failed", action="store_true",
                    help="do not retry the assets the manifest records as failed")
     p.add_argument("--overwrite", action="store_true", help="forget the manifest and redo every asset")

@@ -32,6 +32,31 @@ class _Parser(argparse.ArgumentParser):
         self.exit(EXIT_USAGE, f"pointcvx: error: {message} (see pointcvx --help)\n")
 
 
+def add_decomposition_options(p: argparse.ArgumentParser) -> None:
+    """The decomposition options that ``decompose`` and ``batch`` share (engine caps, threshold,
+    hull budget, feature source, split, merge)."""
+    p.add_argument("--target", choices=list(ENGINE_TARGETS), default=None,
+                   help="keep every hull within this engine's caps (physx: 255 vertices and 255 "
+                        "triangles; physx-gpu: 64 and 64; newton: 64 vertices; unity: 255 "
+                        "triangles; mujoco, bullet: none); reduced hulls still contain their part")
+    p.add_argument("--max-hull-vertices", type=int, default=None, metavar="N",
+                   help="at most N vertices per hull (with --target: the tighter cap wins)")
+    p.add_argument("-t", "--threshold", type=float, default=0.1,
+                   help="concavity threshold in the normalised [-1,1]^3 frame (default 0.1)")
+    p.add_argument("-k", "--max-hulls", type=int, default=64, help="hull budget (default 64)")
+    p.add_argument("--features", choices=["optimize", "model"], default="optimize",
+                   help="optimise a feature field per shape, or use the bundled model (loaded once "
+                        "per process)")
+    p.add_argument("--model", metavar="CKPT",
+                   help="feed-forward model checkpoint for --features model (from `pointcvx train`)")
+    p.add_argument("--views", type=int, default=1, metavar="V",
+                   help="with --features model: encode the shape in V orientations and use the "
+                   "concatenated features (a test-time ensemble; default 1)")
+    p.add_argument("--split", choices=["auto", "kmeans", "ward"], default="auto",
+                   help="how a part is cut in two (auto: k-means on features + xyz)")
+    p.add_argument("--no-merge", action="store_true", help="skip the merge pass")
+
+
 def _add_load_options(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("loading (all inputs)")
     g.add_argument("-n", "--points", type=int, default=None, metavar="N",
@@ -123,25 +148,7 @@ def build_parser() -> argparse.ArgumentParser:
                           "(default: ./INPUT_STEM_hulls.obj)")
     dec.add_argument("--format", choices=list(EXPORT_FORMATS), default=None,
                      help="output format (default: from OUT's suffix)")
-    dec.add_argument("--target", choices=list(ENGINE_TARGETS), default=None,
-                     help="keep every hull within this engine's caps (physx: 255 vertices and 255 "
-                          "triangles; physx-gpu: 64 and 64; newton: 64 vertices; unity: 255 "
-                          "triangles; mujoco, bullet: none); reduced hulls still contain their part")
-    dec.add_argument("--max-hull-vertices", type=int, default=None, metavar="N",
-                     help="at most N vertices per hull (with --target: the tighter cap wins)")
-    dec.add_argument("-t", "--threshold", type=float, default=0.1,
-                     help="concavity threshold in the normalised [-1,1]^3 frame (default 0.1)")
-    dec.add_argument("-k", "--max-hulls", type=int, default=64, help="hull budget (default 64)")
-    dec.add_argument("--features", choices=["optimize", "model"], default="optimize",
-                     help="optimise a feature field for this shape, or use the bundled model")
-    dec.add_argument("--model", metavar="CKPT",
-                     help="feed-forward model checkpoint for --features model (from `pointcvx train`)")
-    dec.add_argument("--views", type=int, default=1, metavar="V",
-                     help="with --features model: encode the shape in V orientations and use the "
-                     "concatenated features (a test-time ensemble; default 1)")
-    dec.add_argument("--split", choices=["auto", "kmeans", "ward"], default="auto",
-                     help="how a part is cut in two (auto: k-means on features + xyz)")
-    dec.add_argument("--no-merge", action="store_true", help="skip the merge pass")
+    add_decomposition_options(dec)
     dec.add_argument("--per-hull", action="store_true", help="write one file per hull")
     dec.add_argument("--overwrite", action="store_true", help="replace existing outputs")
     dec.add_argument("--json", action="store_true", help="print the summary as JSON")
