@@ -108,33 +108,16 @@ def peak_kb() -> int:
 # ------------------------------------------------------------------------------------ methods
 def _warm_pointcvx(params: dict) -> None:
     """Bring the process to the state of a long-running one (``pointcvx batch``, a scan pipeline)
-    before its next shape: import what :func:`pointcvx.decompose` imports lazily (pointcvx's
-    modules and open3d, scikit-learn, scikit-image, ...), load the model weights, and run one
-    small decomposition. The timed call then pays none of these one-time costs, as the
+    before its next shape: :func:`pointcvx.pipeline.preload` (lazy imports, model weights), then
+    one small decomposition. The timed call then pays none of these one-time costs, as the
     baselines' timed calls do not pay their imports."""
-    import open3d  # noqa: F401
-    import scipy.ndimage  # noqa: F401
-    import scipy.sparse.csgraph  # noqa: F401
-    import scipy.spatial  # noqa: F401
-    import skimage.measure  # noqa: F401
-    import sklearn.cluster  # noqa: F401
-    import trimesh  # noqa: F401
+    import trimesh
 
-    import pointcvx.io.mesh  # noqa: F401
-    import pointcvx.metrics  # noqa: F401
-    import pointcvx.recursive  # noqa: F401
-    import pointcvx.watertight  # noqa: F401
+    from pointcvx.pipeline import decompose, preload
 
-    if params.get("features") == "model":
-        from pointcvx.pipeline import load_cached_model
-
-        load_cached_model(params.get("model"))
-    else:
-        import pointcvx.features.field  # noqa: F401
+    preload(params.get("features", "optimize"), params.get("model"))
     # One small decomposition of a ring: the first call of a process also pays one-time set-up
     # inside torch, scikit-learn and Qhull (about a second), which a batch pays once.
-    from pointcvx.pipeline import decompose
-
     ring = trimesh.creation.annulus(r_min=0.5, r_max=1.0, height=0.4)
     decompose(ring, **{**params, "max_hulls": 4, "threshold": 0.2})
 

@@ -57,7 +57,6 @@ import dataclasses
 import gc
 import glob
 import hashlib
-import importlib
 import io
 import json
 import logging
@@ -542,27 +541,17 @@ def _worker_label() -> str:
     return f"{socket.gethostname()}:{os.getpid()}"
 
 
-_WARM_MODULES = ("open3d", "trimesh", "manifold3d", "pointcvx.export", "pointcvx.io.mesh",
-                 "pointcvx.io.scan", "pointcvx.io.splat", "pointcvx.solid")
-
-
 def init_worker(options: BatchOptions, workers_here: int | None = None) -> BatchOptions:
     """Prepare this process to run assets: fix its thread count, import what
     :func:`pointcvx.decompose` imports lazily and, for ``features="model"``, load the model (kept
-    for every later asset). Returns ``options`` with ``max_memory_mb`` resolved (default: this
-    machine's share for ``workers_here`` workers, or for one worker per ``threads`` CPUs)."""
-    from ._bench_worker import _limit_threads, _warm_pointcvx
+    for every later asset) (:func:`pointcvx.pipeline.preload`: imported here, not during, and
+    interrupted with, an asset). Returns ``options`` with ``max_memory_mb`` resolved (default:
+    this machine's share for ``workers_here`` workers, or for one worker per ``threads`` CPUs)."""
+    from ._bench_worker import _limit_threads
+    from .pipeline import preload
 
     _limit_threads(options.threads)
-    _warm_pointcvx({"features": options.features, "model": options.model})
-    for name in _WARM_MODULES:  # imported here, not during (and interrupted with) an asset
-        with contextlib.suppress(ImportError):
-            importlib.import_module(name)
-
-    if options.features == "model":
-        from .pipeline import load_cached_model
-
-        load_cached_model(options.model)
+    preload(options.features, options.model)
     if options.max_memory_mb is None:
         n = workers_here or max(1, (os.cpu_count() or 1) // max(1, options.threads))
         total = machine_memory_mb()

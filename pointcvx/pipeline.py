@@ -5,6 +5,7 @@ load -> oriented cloud -> solid -> features -> recursive split (+ merge) -> hull
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import logging
 import os
@@ -101,6 +102,29 @@ def load_cached_model(model: str | os.PathLike | None = None):
     except (KeyError, RuntimeError, ValueError, EOFError, pickle.UnpicklingError) as exc:
         first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise InputError(f"{path}: not a pointcvx model checkpoint ({first[:120]})") from None
+
+
+#: Modules that :func:`decompose` imports lazily, the libraries among them (optional ones too).
+LAZY_MODULES = (
+    "open3d", "trimesh", "manifold3d", "scipy.ndimage", "scipy.sparse.csgraph", "scipy.spatial",
+    "skimage.measure", "sklearn.cluster", "pointcvx.export", "pointcvx.io.mesh", "pointcvx.io.scan",
+    "pointcvx.io.splat", "pointcvx.solid", "pointcvx.metrics", "pointcvx.recursive", "pointcvx.watertight",
+)
+
+
+def preload(features: str = "optimize", model: str | os.PathLike | None = None) -> None:
+    """Import what :func:`decompose` imports lazily (optional libraries that are not installed are
+    skipped) and, for ``features="model"``, load the network of ``model`` (default: the bundled
+    one) into the per-process cache: what a long-running process (``pointcvx batch`` workers,
+    ``pointcvx bench`` workers) does once before its first shape."""
+    import importlib
+
+    for name in LAZY_MODULES + (("pointcvx.model.source",) if features == "model" else
+                                ("pointcvx.features.field",)):
+        with contextlib.suppress(ImportError):
+            importlib.import_module(name)
+    if features == "model":
+        load_cached_model(model)
 
 
 def compute_features(cloud: OrientedCloud, solid, *, method: str = "optimize", seed: int = 0,

@@ -128,6 +128,28 @@ def balls_inside(model, data, top: float, bounds: np.ndarray, balls: int) -> int
     return inside
 
 
+def shape_and_decompositions(args):
+    """What both engines simulate: the shape (a ``trimesh.Trimesh``), its (2, 3) bounds,
+    pointcvx's decomposition (bundled model, seed 0) and its wall time in seconds, and with
+    ``--coacd`` CoACD's parts as ((v, 3), (f, 3)) pairs (else None)."""
+    import trimesh
+
+    import pointcvx
+
+    mesh = trimesh.load(args.shape, force="mesh")
+    t = time.perf_counter()
+    result = pointcvx.decompose(args.shape, features="model", n_points=args.points, seed=0)
+    decompose_s = time.perf_counter() - t
+    coacd_parts = None
+    if args.coacd:
+        import coacd
+
+        coacd.set_log_level("error")
+        parts = coacd.run_coacd(coacd.Mesh(np.asarray(mesh.vertices), np.asarray(mesh.faces)), seed=0)
+        coacd_parts = [(np.asarray(v), np.asarray(f)) for v, f in parts]
+    return mesh, np.asarray(mesh.bounds), result, decompose_s, coacd_parts
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("shape", nargs="?", default=str(MUG))
@@ -145,28 +167,17 @@ def main(argv: list[str] | None = None) -> int:
     if args.engine == "newton":
         return newton_main(args)
     import mujoco
-    import trimesh
 
-    import pointcvx
-
-    mesh = trimesh.load(args.shape, force="mesh")
-    bounds = np.asarray(mesh.bounds)
+    mesh, bounds, result, decompose_s, coacd_parts = shape_and_decompositions(args)
     top = float(bounds[1, 2])
-    t = time.perf_counter()
-    result = pointcvx.decompose(args.shape, features="model", n_points=args.points, seed=0)
-    decompose_s = time.perf_counter() - t
     limited = result.limit_hulls("physx-gpu")
     variants = {
         f"pointcvx ({len(result)} hulls)": [(h.vertices, h.faces) for h in result.hulls],
         f"pointcvx physx-gpu ({len(limited)} hulls)": [(h.vertices, h.faces) for h in limited.hulls],
         "original mesh (1 geom)": [(np.asarray(mesh.vertices), np.asarray(mesh.faces))],
     }
-    if args.coacd:
-        import coacd
-
-        coacd.set_log_level("error")
-        parts = coacd.run_coacd(coacd.Mesh(np.asarray(mesh.vertices), np.asarray(mesh.faces)), seed=0)
-        variants[f"coacd ({len(parts)} hulls)"] = [(np.asarray(v), np.asarray(f)) for v, f in parts]
+    if coacd_parts is not None:
+        variants[f"coacd ({len(coacd_parts)} hulls)"] = coacd_parts
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         models = {}
@@ -295,21 +306,15 @@ def newton_run(model, seconds: float) -> tuple[float, float, float, np.ndarray, 
 
 def newton_main(args) -> int:
     import newton
-    import trimesh
     import warp as wp
 
-    import pointcvx
     from pointcvx.export import mass_properties
 
     wp.config.quiet = True
     wp.config.enable_backward = False  # no gradients: nearly half the compile time
     wp.init()
-    mesh = trimesh.load(args.shape, force="mesh")
-    bounds = np.asarray(mesh.bounds)
+    mesh, bounds, result, decompose_s, coacd_parts = shape_and_decompositions(args)
     top = float(bounds[1, 2])
-    t = time.perf_counter()
-    result = pointcvx.decompose(args.shape, features="model", n_points=args.points, seed=0)
-    decompose_s = time.perf_counter() - t
     limited = result.limit_hulls("newton")
     single = result.recut(max_hulls=1)
     pairs = [(h.vertices, h.faces) for h in result.hulls]
@@ -320,12 +325,8 @@ def newton_main(args) -> int:
         "original mesh (triangle mesh)": ([(np.asarray(mesh.vertices), np.asarray(mesh.faces))], True),
         "single convex hull": ([(h.vertices, h.faces) for h in single.hulls], False),
     }
-    if args.coacd:
-        import coacd
-
-        coacd.set_log_level("error")
-        parts = coacd.run_coacd(coacd.Mesh(np.asarray(mesh.vertices), np.asarray(mesh.faces)), seed=0)
-        variants[f"coacd ({len(parts)} hulls)"] = ([(np.asarray(v), np.asarray(f)) for v, f in parts], False)
+    if coacd_parts is not None:
+        variants[f"coacd ({len(coacd_parts)} hulls)"] = (coacd_parts, False)
     models = {}
     t = time.perf_counter()
     for label, (hulls, triangles) in variants.items():
