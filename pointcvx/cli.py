@@ -137,14 +137,15 @@ def build_parser() -> argparse.ArgumentParser:
         "convex-aware features, then recursive splitting of the most concave part until every "
         "part's concavity is under --threshold or --max-hulls hulls exist, then a merge pass. "
         "Writes the hulls in the input's units (an OBJ with one object per hull by default; STL, "
-        "GLB/GLTF, URDF, MJCF or a JSON report with --format or by OUT's suffix), optionally "
+        "GLB/GLTF, URDF, MJCF, USD or a JSON report with --format or by OUT's suffix), optionally "
         "within an engine's per-hull caps (--target), and prints hulls, concavity and time.",
     )
     dec.add_argument("input", help="mesh, CAD part, Gaussian splat or scan")
     dec.add_argument("-o", "--output", metavar="OUT",
                      help="OUT.obj (one 'o' per hull), OUT.stl/DIR for one file per hull, OUT.glb/"
                           "OUT.gltf (a node per hull), OUT.urdf or OUT.xml/OUT.mjcf (folder OUT/ "
-                          "with the robot file and an OBJ per hull), OUT.json (report) "
+                          "with the robot file and an OBJ per hull), OUT.usda/OUT.usd (USD rigid "
+                          "body, a collider per hull), OUT.json (report) "
                           "(default: ./INPUT_STEM_hulls.obj)")
     dec.add_argument("--format", choices=list(EXPORT_FORMATS), default=None,
                      help="output format (default: from OUT's suffix)")
@@ -303,13 +304,11 @@ def cmd_decompose(args: argparse.Namespace) -> int:
         result = decompose(
             args.input, threshold=args.threshold, max_hulls=args.max_hulls,
             features=args.features, model=args.model, views=args.views, merge=not args.no_merge,
-            split=args.split,
-            n_points=args.points, seed=args.seed, progress=bars, **load_kwargs,
+            split=args.split, n_points=args.points, seed=args.seed, target=args.target,
+            max_hull_vertices=args.max_hull_vertices, progress=bars, **load_kwargs,
         )
     finally:
         bars.close()
-    if limits.active:
-        result = result.limit_hulls(limits.target, limits.max_vertices, limits.max_faces)
     written = result.export(out, fmt, overwrite=args.overwrite, per_hull=per_hull)
     if args.quiet:
         return 0
@@ -318,8 +317,8 @@ def cmd_decompose(args: argparse.Namespace) -> int:
     summary["output"] = str(written[0].parent / f"hull_*{EXPORT_EXTENSIONS[fmt]}" if per_hull
                             else written[0])
     summary["files"] = len(written)
-    if limits.active:
-        summary["hull_limits"] = limits.as_dict()
+    if result.params.get("hull_limits"):
+        summary["hull_limits"] = result.params["hull_limits"]
     summary["timings"] = {k: round(v, 3) for k, v in result.timings.items()}
     if args.json:
         print(json.dumps(summary, indent=2))
@@ -333,6 +332,8 @@ def cmd_decompose(args: argparse.Namespace) -> int:
             line += (f"; {limits.target or 'limits'} ({caps}): at most {summary['max_hull_vertices']} "
                      f"vertices per hull, added volume {summary['added_volume']:.6g} "
                      f"(+{100 * summary['added_volume_ratio']:.3g}%)")
+        elif limits.target:
+            line += f"; {limits.target}: no per-hull caps"
         print(f"{line} -> {summary['output']}")
     return 0
 

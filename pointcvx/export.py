@@ -1,4 +1,4 @@
-"""Writers for decompositions: OBJ, STL, GLB/GLTF, URDF, MJCF and a JSON report.
+"""Writers for decompositions: OBJ, STL, GLB/GLTF, URDF, MJCF, USD (text) and a JSON report.
 
 Small functions over plain arrays; :func:`export_decomposition` lays out the files of one format
 and :func:`write_files` writes them all or none. Everything is in the input's units.
@@ -16,6 +16,10 @@ Layouts (``NAME`` is the output's stem):
 - ``mjcf``: the folder ``NAME/`` with ``NAME.xml`` in obj2mjcf's layout (a mesh asset per file, one
   body ``NAME`` holding a visual geom of class ``visual``, group 2, contype/conaffinity 0, and a
   collision geom of class ``collision``, group 3, per hull) and the same OBJ files as URDF.
+- ``usda``: one ``NAME.usda`` (or ``NAME.usd``; text either way), Z up, 1 unit = 1 m: a rigid body
+  Xform ``NAME`` (mass from the hulls at ``density``), the input mesh as the Mesh ``visual`` where
+  it is a mesh, and an Xform ``collision`` with one guide-purpose Mesh ``hull_NNN`` per hull,
+  each a PhysX/UsdPhysics collider with ``physics:approximation = "convexHull"``.
 - ``json``: a report: per hull vertex and face counts, volume, added volume, concavity, points;
   totals; parameters; seed; timings.
 """
@@ -26,6 +30,7 @@ import contextlib
 import json
 import logging
 import os
+import re
 from pathlib import Path
 from typing import Any
 from xml.sax.saxutils import quoteattr
@@ -37,11 +42,11 @@ from .io.files import atomic_path
 
 log = logging.getLogger(__name__)
 
-FORMATS = ("obj", "stl", "glb", "gltf", "urdf", "mjcf", "json")
+FORMATS = ("obj", "stl", "glb", "gltf", "urdf", "mjcf", "usda", "json")
 SUFFIXES = {".obj": "obj", ".stl": "stl", ".glb": "glb", ".gltf": "gltf", ".urdf": "urdf",
-            ".xml": "mjcf", ".mjcf": "mjcf", ".json": "json"}
+            ".xml": "mjcf", ".mjcf": "mjcf", ".usda": "usda", ".usd": "usda", ".json": "json"}
 EXTENSIONS = {"obj": ".obj", "stl": ".stl", "glb": ".glb", "gltf": ".gltf", "urdf": ".urdf",
-              "mjcf": ".xml", "json": ".json"}
+              "mjcf": ".xml", "usda": ".usda", "json": ".json"}
 FOLDER_FORMATS = ("stl", "urdf", "mjcf")
 
 
@@ -254,6 +259,89 @@ def mjcf_text(name: str, collision_files: list[str], visual_files: list[str],
     return "\n".join(lines) + "\n"
 
 
+# ------------------------------------------------------------------------------ USD
+def usd_identifier(name: str) -> str:
+    """``name`` as a USD prim name: ASCII letters, digits and ``_``, not starting with a digit."""
+    ident = re.sub(r"[^A-Za-z0-9_]", "_", str(name))
+    return ident if ident and not ident[0].isdigit() else f"_{ident}"
+
+
+def _usd_tuples(values: np.ndarray, digits: int = 17) -> str:
+    """``[(x, y, z), ...]`` of (n, 3) float ``values`` at ``digits`` significant digits."""
+    rows = np.asarray(values, dtype=np.float64).reshape(-1, 3)
+    return "[" + ", ".join(f"({x:.{digits}g}, {y:.{digits}g}, {z:.{digits}g})" for x, y, z in rows) + "]"
+
+
+def _usd_ints(values: np.ndarray) -> str:
+    return "[" + ", ".join(str(int(i)) for i in np.asarray(values, dtype=np.int64).ravel()) + "]"
+
+
+def usd_mesh_lines(name: str, vertices: np.ndarray, faces: np.ndarray, indent: str = "",
+                   collider: bool = False, digits: int = 17) -> list[str]:
+    """The lines of a ``def Mesh`` prim ``name`` of (v, 3) float ``vertices`` and (f, 3) int
+    ``faces`` (wound outward: USD's default right-handed orientation), with its ``extent`` and no
+    subdivision. ``collider``: a guide-purpose convex-hull collider (``PhysicsCollisionAPI``,
+    ``PhysicsMeshCollisionAPI``, ``physics:approximation = "convexHull"``). Coordinates are written
+    at ``digits`` significant digits (17: every float64 exactly; USD readers store ``point3f``)."""
+    v = np.asarray(vertices, dtype=np.float64).reshape(-1, 3)
+    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    i2 = indent + "    "
+    if collider:
+        lines = [f'{indent}def Mesh "{name}" (',
+                 f'{i2}prepend apiSchemas = ["PhysicsCollisionAPI", "PhysicsMeshCollisionAPI"]',
+                 f"{indent})"]
+    else:
+        lines = [f'{indent}def Mesh "{name}"']
+    lines.append(f"{indent}{{")
+    if len(v):
+        lines.append(f"{i2}float3[] extent = {_usd_tuples(np.stack([v.min(axis=0), v.max(axis=0)]), digits)}")
+    lines += [f"{i2}int[] faceVertexCounts = {_usd_ints(np.full(len(f), 3))}",
+              f"{i2}int[] faceVertexIndices = {_usd_ints(f)}",
+              f"{i2}point3f[] points = {_usd_tuples(v, digits)}",
+              f'{i2}uniform token subdivisionScheme = "none"']
+    if collider:
+        lines += [f'{i2}uniform token physics:approximation = "convexHull"',
+                  f'{i2}uniform token purpose = "guide"']
+    lines.append(f"{indent}}}")
+    return lines
+
+
+def usda_text(name: str, hulls, visual: tuple[np.ndarray, np.ndarray] | None = None,
+              mass: float = 0.0, center: np.ndarray | None = None, digits: int = 17) -> str:
+    """A USD text layer (Z up, ``metersPerUnit = 1``) whose default prim is the rigid body Xform
+    ``name`` (a valid identifier, see :func:`usd_identifier`; ``PhysicsRigidBodyAPI`` and
+    ``PhysicsMassAPI`` with ``mass`` at (3,) ``center``; the engine computes the inertia from the
+    colliders), holding ``visual`` (((v, 3) float, (f, 3) int) or None) as the Mesh ``visual`` and
+    the Xform ``collision`` with one collider Mesh ``hull_NNN`` per hull (see
+    :func:`usd_mesh_lines`).
+
+    ``hulls``: a sequence of ((v, 3) float vertices, (f, 3) int faces) pairs, or a dict hull
+    index -> pair (:func:`robot_hulls`); hulls without faces (a segment, a point) are left out,
+    their index unused.
+    """
+    lines = ["#usda 1.0", "(", f'    defaultPrim = "{name}"',
+             f'    doc = "pointcvx convex decomposition: {len(hulls)} hulls"',
+             "    metersPerUnit = 1", '    upAxis = "Z"', ")", "",
+             f'def Xform "{name}" (', '    prepend apiSchemas = ["PhysicsRigidBodyAPI", "PhysicsMassAPI"]',
+             ")", "{", f"    float physics:mass = {_fmt(mass)}"]
+    if center is not None and mass > 0:
+        lines.append(f"    point3f physics:centerOfMass = ({', '.join(_fmt(c) for c in center)})")
+    if visual is not None:
+        lines += ["", *usd_mesh_lines("visual", *visual, indent="    ", digits=digits)]
+    lines += ["", '    def Xform "collision"', "    {"]
+    first = True
+    for i, (v, f) in (hulls.items() if isinstance(hulls, dict) else enumerate(hulls)):
+        if len(f) == 0:
+            log.warning("hull %d has no faces (a segment or a point): left out of the USD file", i)
+            continue
+        if not first:
+            lines.append("")
+        lines += usd_mesh_lines(f"hull_{i:03d}", v, f, indent="        ", collider=True, digits=digits)
+        first = False
+    lines += ["    }", "}"]
+    return "\n".join(lines) + "\n"
+
+
 # ------------------------------------------------------------------------------ report
 def report(result) -> dict[str, Any]:
     """The JSON report of a :class:`~pointcvx.result.Decomposition` (input units for volumes)."""
@@ -313,6 +401,10 @@ def plan(result, path: str | os.PathLike, format: str | None = None, per_hull: b
         return {main: scene_bytes(pairs, fmt)}
     if fmt == "json":
         return {main: report_text(result)}
+    if fmt == "usda":  # colliders as the robot formats have them: flat hulls grown to thin slabs
+        solids = robot_hulls(pairs)
+        mass, center, _ = mass_properties(list(solids.values()), density)
+        return {main: usda_text(usd_identifier(main.stem), solids, _visual_mesh(result), mass, center)}
     name = main.stem
     files: dict[Path, str | bytes] = {main: ""}
     solids = robot_hulls(pairs)

@@ -214,10 +214,11 @@ class Decomposition:
         ``hull_NNN.obj`` each), ``"stl"`` (.stl: one ``hull_NNN.stl`` per hull in the folder
         named by the stem), ``"glb"``/``"gltf"`` (a scene, a node per hull), ``"urdf"`` (.urdf)
         and ``"mjcf"`` (.xml, .mjcf): a folder named by the stem holding the robot file and an OBJ
-        per hull (plus the input mesh as visual), ``"json"`` (.json: the report). See
-        :mod:`pointcvx.export` for the layouts. ``target`` / ``max_hull_vertices`` apply
-        :meth:`limit_hulls` first. ``free_joint`` (MJCF) and ``density`` (URDF, MJCF; input units)
-        shape the robot files.
+        per hull (plus the input mesh as visual), ``"usda"`` (.usda, .usd: one USD text file, a
+        rigid body with a convex-hull collider Mesh per hull and the input mesh as visual),
+        ``"json"`` (.json: the report). See :mod:`pointcvx.export` for the layouts. ``target`` /
+        ``max_hull_vertices`` apply :meth:`limit_hulls` first. ``free_joint`` (MJCF) and
+        ``density`` (URDF, MJCF, USD mass; input units) shape the robot files.
 
         Writes are atomic and all-or-nothing; the input file is never written over and existing
         files are kept (:class:`~pointcvx.errors.OutputError`) unless ``overwrite``.

@@ -271,7 +271,7 @@ def test_format_dispatch_and_bad_choices(result, tmp_path):
         with pytest.raises(pointcvx.OutputError, match=match):
             result.export(tmp_path / bad, fmt)
         assert not (tmp_path / bad).exists()
-    assert set(FORMATS) == {"obj", "stl", "glb", "gltf", "urdf", "mjcf", "json"}
+    assert set(FORMATS) == {"obj", "stl", "glb", "gltf", "urdf", "mjcf", "usda", "json"}
 
 
 def test_folder_exports_are_all_or_nothing(result, tmp_path):
@@ -344,3 +344,20 @@ def test_cli_target_format_and_refusals(source, tmp_path, capsys, monkeypatch):
     line = capsys.readouterr().out.strip()
     assert "vertices <= 16" in line and "added volume" in line and line.endswith("h.obj")
     assert max(len(v) for v in load_hulls(tmp_path / "h.obj")) <= 16
+
+
+def test_cli_and_api_apply_a_target_the_same_way(source, tmp_path, capsys, monkeypatch):
+    """``--target`` on the command line and ``target=`` in the API record the same caps (MuJoCo:
+    none) and give the same hulls."""
+    monkeypatch.chdir(tmp_path)
+    for target in ("mujoco", "newton"):
+        assert main(["decompose", str(source), "--features", "model", "-n", "3000", "--target", target,
+                     "-o", f"{target}.obj", "--json"]) == 0
+        summary = json.loads(capsys.readouterr().out)
+        api = pointcvx.decompose(source, features="model", n_points=3000, target=target)
+        assert summary["hull_limits"] == api.params["hull_limits"]
+        assert summary["hull_limits"]["target"] == target
+        assert summary["hulls"] == len(api.hulls)
+        assert summary["max_hull_vertices"] == max(len(h.vertices) for h in api.hulls)
+        assert summary["added_volume"] == pytest.approx(api.added_volume, rel=1e-9, abs=1e-12)
+    assert summary["max_hull_vertices"] <= 64  # newton's cap
