@@ -121,7 +121,8 @@ def test_callers_gmsh_session_is_left_alone(sample):
         gmsh.option.setNumber("General.Terminal", 0)
         gmsh.model.add("mine")
         gmsh.option.setNumber("Mesh.MeshSizeMax", 123.0)
-        tessellate_cad(sample, mesh_size=0.05)
+        tessellate_cad(sample, mesh_size=0.05)  # in a child process
+        tessellate_cad(sample, mesh_size=0.05, isolate=False)  # in the caller's gmsh
         assert gmsh.isInitialized()
         assert gmsh.model.getCurrent() == "mine"
         assert gmsh.option.getNumber("Mesh.MeshSizeMax") == 123.0
@@ -136,3 +137,58 @@ def test_missing_gmsh_names_the_extra(sample, monkeypatch):
         pointcvx.load(sample)
     with pytest.raises(MissingExtraError, match=msg):
         write_step_sample(sample.parent / "other.step")
+
+
+# ------------------------------------------------------------------------------ child process
+def test_tessellation_in_a_child_equals_in_process_and_leaves_the_caller_alone(sample):
+    import locale
+
+    before = locale.setlocale(locale.LC_ALL)
+    isolated = tessellate_cad(CAD / "linkrods.step")  # the default: a fresh child process
+    assert locale.setlocale(locale.LC_ALL) == before  # gmsh resets the locale of its process
+    assert not gmsh.isInitialized()
+    here = tessellate_cad(CAD / "linkrods.step", isolate=False)
+    assert np.array_equal(isolated.vertices, here.vertices) and np.array_equal(isolated.faces, here.faces)
+    assert isolated.metadata["cad"] == here.metadata["cad"]
+    # a file gmsh cannot read gives the same one-line error through the child
+    junk = sample.parent / "junk.step"
+    junk.write_text("ISO-10303-21;\nDATA;\n#1=(((;\nENDSEC;\nEND-ISO-10303-21;\n")
+    messages = []
+    for isolate in (True, False):
+        with pytest.raises(InputError, match=r"junk\.step: corrupted or unreadable STEP") as info:
+            tessellate_cad(junk, isolate=isolate)
+        messages.append(str(info.value))
+    assert messages[0] == messages[1] and "\n" not in messages[0]
+
+
+def test_a_crash_in_the_child_is_an_input_error(sample, monkeypatch):
+    from pointcvx.io import cad
+
+    crash = [sys.executable, "-c", "import os, signal; os.kill(os.getpid(), signal.SIGSEGV)"]
+    monkeypatch.setattr(cad, "_child_command", lambda *args: crash)
+    crashed = r"bracket\.step: gmsh/OpenCASCADE crashed reading the STEP \(SIGSEGV\)"
+    with pytest.raises(InputError, match=crashed):
+        pointcvx.load(sample)
+
+
+def test_an_interrupted_tessellation_kills_its_child(sample, tmp_path, monkeypatch):
+    import os
+
+    from pointcvx.batch import AssetTimeout, _Guard
+    from pointcvx.io import cad
+
+    pid_file = tmp_path / "child.pid"
+    slow = [sys.executable, "-c",
+            f"import os, time; open({str(pid_file)!r}, 'w').write(str(os.getpid())); time.sleep(60)"]
+    monkeypatch.setattr(cad, "_child_command", lambda *args: slow)
+    guard = _Guard(timeout=1.0, max_mb=None).start()
+    t0 = time.perf_counter()
+    try:
+        with pytest.raises(AssetTimeout):
+            tessellate_cad(sample)
+    finally:
+        guard.stop()
+    assert time.perf_counter() - t0 < 10.0
+    pid = int(pid_file.read_text())
+    with pytest.raises(ProcessLookupError):
+        os.kill(pid, 0)

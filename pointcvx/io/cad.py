@@ -6,9 +6,14 @@ triangles of every body merged into one ``trimesh.Trimesh`` (:func:`tessellate_c
 then sampled like any other mesh (:func:`pointcvx.io.mesh.cloud_from_mesh`) with
 ``modality="cad"``.
 
-gmsh is optional (``pip install 'pointcvx[cad]'``) and a process-wide singleton: every use here
-holds a lock, works in its own model, silences gmsh and OpenCASCADE (which print straight to the
-process's stdout), and finalises gmsh again unless the caller had initialised it.
+gmsh is optional (``pip install 'pointcvx[cad]'``). By default every tessellation runs in a fresh
+child process (:data:`ISOLATE`): gmsh and OpenCASCADE keep process-wide state (gmsh also resets the
+process's locale from the environment), a crash in their native code would otherwise take the
+caller's interpreter down, and in long-lived multi-threaded workers (Ray actors) the same STEP part
+was measured to come out tessellated in two different ways from run to run, which a fresh process
+never did. In the process that meshes, gmsh is a process-wide singleton: every use here holds a
+lock, works in its own model, silences gmsh and OpenCASCADE (which print straight to the process's
+stdout), and finalises gmsh again unless the caller had initialised it.
 """
 
 from __future__ import annotations
@@ -16,8 +21,11 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import itertools
+import json
 import logging
 import os
+import signal
+import subprocess
 import sys
 import tempfile
 import threading
@@ -40,6 +48,10 @@ SEW_TOLERANCE = 1e-4
 #: gmsh meshing threads. More threads mesh surfaces in parallel but make the triangulation
 #: differ from run to run; one keeps the same file giving the same cloud.
 THREADS = 1
+#: Tessellate in a fresh child process (see the module docstring); ``tessellate_cad(isolate=)``
+#: overrides it per call. In-process meshing saves the child's start (about 0.3 s).
+ISOLATE = True
+_CHILD_INPUT_ERROR = 3  # the child's exit status for a file it could not tessellate
 
 _EXTENSIONS = {".step": "step", ".stp": "step", ".p21": "step", ".iges": "iges", ".igs": "iges"}
 _NAMES = {"step": "STEP", "iges": "IGES"}
@@ -203,7 +215,8 @@ def _surface_triangles(gmsh) -> tuple[np.ndarray, np.ndarray, int, int]:
     return vertices, faces, len(surfaces) - empty, empty
 
 
-def tessellate_cad(path: str | os.PathLike, mesh_size: float = 0.01, fmt: str | None = None):
+def tessellate_cad(path: str | os.PathLike, mesh_size: float = 0.01, fmt: str | None = None,
+                   isolate: bool | None = None):
     """Triangulate every surface of a STEP or IGES file into one ``trimesh.Trimesh``.
 
     Parameters
@@ -214,6 +227,10 @@ def tessellate_cad(path: str | os.PathLike, mesh_size: float = 0.01, fmt: str | 
         further (``CURVATURE_ELEMENTS`` per turn), down to ``MIN_SIZE_FRACTION`` of it.
     fmt : str, optional
         ``step`` or ``iges``; guessed from the extension, then the content, when omitted.
+    isolate : bool, optional
+        Mesh in a fresh child process (default :data:`ISOLATE`): the same file always gives the
+        same mesh, the caller's process state (locale, a gmsh session of its own) is untouched,
+        and a crash of gmsh or OpenCASCADE becomes an :class:`InputError`.
 
     Returns
     -------
@@ -239,14 +256,12 @@ def tessellate_cad(path: str | os.PathLike, mesh_size: float = 0.01, fmt: str | 
         raise InputError(f"{p}: {fmt!r} is not a CAD format (expected step or iges)")
     name = _NAMES[fmt]
     gmsh = import_gmsh()
-    try:
-        # The lock also covers the descriptor redirection, which is process-wide.
-        with _LOCK, captured_output() as output, gmsh_session(gmsh):
-            vertices, faces, counts = _tessellate_in_session(gmsh, p, fmt, mesh_size)
-    except _GmshFailure as fail:
-        raise InputError(f"{p}: {fail.what} ({_occ_error(output) or fail.detail})") from None
-    if output and output[0].strip():
-        log.debug("%s: gmsh/OpenCASCADE output:\n%s", p, output[0][:4000])
+    if ISOLATE if isolate is None else isolate:
+        vertices, faces, counts, text = _tessellate_in_child(p, fmt, mesh_size)
+    else:
+        vertices, faces, counts, text = _tessellate_here(gmsh, p, fmt, mesh_size)
+    if text.strip():
+        log.debug("%s: gmsh/OpenCASCADE output:\n%s", p, text[:4000])
     if len(faces) == 0:
         raise InputError(f"{p}: meshing the {name} produced no triangles ({counts['surfaces']} surfaces)")
     if counts["surfaces_failed"]:
@@ -257,6 +272,86 @@ def tessellate_cad(path: str | os.PathLike, mesh_size: float = 0.01, fmt: str | 
     log.debug("%s: %d bodies, %d surfaces -> %d triangles (element size %.4g)", p, counts["bodies"],
               counts["surfaces"], len(mesh.faces), counts["mesh_size"])
     return mesh
+
+
+def _tessellate_here(gmsh, p: Path, fmt: str, mesh_size: float):
+    """Mesh in this process: (v, 3) vertices, (f, 3) faces, counts and gmsh's printed output."""
+    try:
+        # The lock also covers the descriptor redirection, which is process-wide.
+        with _LOCK, captured_output() as output, gmsh_session(gmsh):
+            vertices, faces, counts = _tessellate_in_session(gmsh, p, fmt, mesh_size)
+    except _GmshFailure as fail:
+        raise InputError(f"{p}: {fail.what} ({_occ_error(output) or fail.detail})") from None
+    return vertices, faces, counts, output[0] if output else ""
+
+
+def _child_command(p: Path, fmt: str, mesh_size: float, out: Path) -> list[str]:
+    return [sys.executable, "-m", "pointcvx.io._cad_child", str(p), fmt, repr(float(mesh_size)), str(out)]
+
+
+def _tessellate_in_child(p: Path, fmt: str, mesh_size: float):
+    """Mesh in a fresh ``python -m pointcvx.io._cad_child`` process (same results as
+    :func:`_tessellate_here` there); the child is killed if this call is interrupted."""
+    name = _NAMES[fmt]
+    env = dict(os.environ)
+    root = str(Path(__file__).resolve().parents[2])  # import this very pointcvx in the child
+    env["PYTHONPATH"] = os.pathsep.join([root, *([env["PYTHONPATH"]] if env.get("PYTHONPATH") else [])])
+    with tempfile.TemporaryDirectory(prefix="pointcvx-cad-") as tmp:
+        out = Path(tmp) / "mesh.npz"
+        proc = subprocess.Popen(_child_command(p, fmt, mesh_size, out), stdin=subprocess.DEVNULL,
+                                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env)
+        try:
+            while True:  # short waits, so that an interrupt (Ctrl-C, a batch timeout) gets through
+                try:
+                    _, err = proc.communicate(timeout=0.2)
+                    break
+                except subprocess.TimeoutExpired:
+                    continue
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+        code = proc.returncode
+        if code == 0 and out.is_file():
+            with np.load(out) as data:
+                meta = json.loads(str(data["meta"]))
+                return data["vertices"], data["faces"], meta["counts"], meta["output"]
+        if code == _CHILD_INPUT_ERROR and out.with_suffix(".json").is_file():
+            raise InputError(json.loads(out.with_suffix(".json").read_text())["error"])
+    if code < 0:
+        with contextlib.suppress(ValueError):
+            code = signal.Signals(-code).name
+        raise InputError(f"{p}: gmsh/OpenCASCADE crashed reading the {name} ({code})")
+    last = err.decode("utf-8", errors="replace").strip().splitlines()[-1:] or [f"exit status {code}"]
+    raise InputError(f"{p}: tessellating the {name} failed ({last[0]})")
+
+
+def child_main(argv: list[str]) -> int:
+    """``python -m pointcvx.io._cad_child PATH FMT MESH_SIZE OUT.npz``: mesh in this process and
+    write the arrays (or, for a file that cannot be meshed, ``OUT.json`` with the error)."""
+    src, fmt, size, out = argv
+    _exit_with_parent()
+    try:
+        vertices, faces, counts, text = _tessellate_here(import_gmsh(), Path(src), fmt, float(size))
+    except InputError as exc:
+        Path(out).with_suffix(".json").write_text(json.dumps({"error": str(exc)}))
+        return _CHILD_INPUT_ERROR
+    meta = json.dumps({"counts": counts, "output": text[:100_000]})
+    np.savez(out, vertices=vertices, faces=faces, meta=np.array(meta))
+    return 0
+
+
+def _exit_with_parent(interval: float = 0.5) -> None:
+    """Exit this process if its parent dies (a batch worker killed mid-asset)."""
+    parent = os.getppid()
+
+    def watch() -> None:
+        while True:
+            threading.Event().wait(interval)
+            if os.getppid() != parent:
+                os._exit(1)
+
+    threading.Thread(target=watch, name="pointcvx-cad-parent-watch", daemon=True).start()
 
 
 def _tessellate_in_session(gmsh, p: Path, fmt: str, mesh_size: float):
