@@ -23,3 +23,22 @@ def data_dir() -> Path:
     if not DATA.is_dir():
         raise FileNotFoundError(f"shared data not found at {DATA}")
     return DATA
+
+
+@pytest.fixture(scope="session")
+def source(tmp_path_factory) -> Path:
+    """A torus written as OBJ (the export tests' input)."""
+    from shapes import torus
+
+    path = tmp_path_factory.mktemp("input") / "torus.obj"
+    torus().export(path)
+    return path
+
+
+@pytest.fixture(scope="session")
+def result(source):
+    """The torus decomposed with the bundled model (3,000 points, seed 0): hulls of about 200
+    vertices each."""
+    import pointcvx
+
+    return pointcvx.decompose(source, features="model", n_points=3000, seed=0)

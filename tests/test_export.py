@@ -11,7 +11,6 @@ from dataclasses import replace
 import numpy as np
 import pytest
 import trimesh
-from shapes import torus
 
 import pointcvx
 from pointcvx.cli import EXIT_INPUT, EXIT_USAGE, main
@@ -24,19 +23,6 @@ CAPS = {  # target -> (most vertices, most triangles) per hull
     "mujoco": (None, None), "bullet": (None, None), "physx": (255, 255),
     "physx-gpu": (64, 64), "newton": (64, None), "unity": (None, 255),
 }
-
-
-@pytest.fixture(scope="module")
-def source(tmp_path_factory):
-    path = tmp_path_factory.mktemp("input") / "torus.obj"
-    torus().export(path)
-    return path
-
-
-@pytest.fixture(scope="module")
-def result(source):
-    """A real decomposition whose hulls have about 200 vertices each."""
-    return pointcvx.decompose(source, **FAST)
 
 
 def _closed_convex_outward(vertices, faces) -> bool:

@@ -10,27 +10,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 import trimesh
-from shapes import torus
 
 import pointcvx
 from pointcvx.cli import main
 from pointcvx.export import _visual_mesh, format_for, mass_properties, usd_identifier, usda_text
 
-FAST = dict(features="model", n_points=3000, seed=0)
 COLLIDER_APIS = ["PhysicsCollisionAPI", "PhysicsMeshCollisionAPI"]
 BODY_APIS = ["PhysicsRigidBodyAPI", "PhysicsMassAPI"]
-
-
-@pytest.fixture(scope="module")
-def source(tmp_path_factory):
-    path = tmp_path_factory.mktemp("input") / "torus.obj"
-    torus().export(path)
-    return path
-
-
-@pytest.fixture(scope="module")
-def result(source):
-    return pointcvx.decompose(source, **FAST)
 
 
 # ------------------------------------------------------------------------------ a small parser
