@@ -315,6 +315,8 @@ def test_ray_batch_survives_a_killed_worker_and_resumes(tmp_path, monkeypatch):
     127.0.0.1; one actor's process is killed (SIGKILL) while it runs an asset; every other asset
     is done; a second run completes the batch; the hulls equal the local engine's."""
     monkeypatch.setenv("RAY_ENABLE_WINDOWS_OR_OSX_CLUSTER", "0")  # Ray on loopback only
+    # Ray starts workers at niceness 15: on a busy machine they would wait behind everything else
+    monkeypatch.setenv("RAY_worker_niceness", "0")
     ray = pytest.importorskip("ray")
     listing, corrupt = _manifest_file(tmp_path, DOZEN)
     out = tmp_path / "out"
