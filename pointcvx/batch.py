@@ -1234,32 +1234,26 @@ def run_batch(
             if progress is not None:
                 progress(finished, len(work), rec)
 
+        def drive(pool_type, cpus: int, run_opts: BatchOptions) -> int:
+            """Run ``work`` on ``--jobs`` workers (default: ``cpus`` / threads) of ``pool_type``."""
+            n = min(jobs or max(1, cpus // opts.threads), len(work))
+            if engine == "local" and run_opts.max_memory_mb is None and machine_memory_mb():
+                run_opts = dataclasses.replace(run_opts,
+                                               max_memory_mb=MEMORY_SHARE * machine_memory_mb() / n)
+            pool = pool_type(n, run_opts, str(out))
+            try:
+                _drive(pool, n, work, run_opts, config, on_result, stats)
+            finally:
+                pool.close()
+            return n
+
         n_jobs = jobs
         try:
-            if work:
-                if engine == "local":
-                    n_jobs = n_jobs or max(1, (os.cpu_count() or 1) // opts.threads)
-                    n_jobs = min(n_jobs, len(work))
-                    run_opts = opts
-                    if opts.max_memory_mb is None and machine_memory_mb():
-                        run_opts = dataclasses.replace(
-                            opts, max_memory_mb=MEMORY_SHARE * machine_memory_mb() / n_jobs)
-                    pool = _LocalPool(n_jobs, run_opts, str(out))
-                    try:
-                        _drive(pool, n_jobs, work, run_opts, config, on_result, stats)
-                    finally:
-                        pool.close()
-                else:
-                    with ray_session(address, num_cpus=(n_jobs * opts.threads if n_jobs else None)) as ray:
-                        if n_jobs is None:
-                            cpus = int(ray.cluster_resources().get("CPU", 1))
-                            n_jobs = max(1, cpus // opts.threads)
-                        n_jobs = min(n_jobs, len(work))
-                        pool = _RayPool(n_jobs, opts, str(out))
-                        try:
-                            _drive(pool, n_jobs, work, opts, config, on_result, stats)
-                        finally:
-                            pool.close()
+            if work and engine == "local":
+                n_jobs = drive(_LocalPool, os.cpu_count() or 1, opts)
+            elif work:
+                with ray_session(address, num_cpus=(jobs * opts.threads if jobs else None)) as ray:
+                    n_jobs = drive(_RayPool, int(ray.cluster_resources().get("CPU", 1)), opts)
         finally:
             wall = time.perf_counter() - t0
             rows = [_row(a, state[a.id], out) for a in assets]

@@ -77,6 +77,21 @@ def write_mjcf(folder: Path, name: str, hulls) -> Path:
     return main
 
 
+def ball_grid(bounds: np.ndarray, top: float, balls: int) -> np.ndarray:
+    """(balls, 3) float: starting centres of the falling balls, a square grid over the middle
+    quarter of the object's (2, 3) ``bounds``, each a little higher than the one before, above
+    ``top``."""
+    side = int(np.ceil(np.sqrt(balls)))
+    centre = bounds.mean(axis=0)
+    span = 0.25 * (bounds[1] - bounds[0]).min()
+    out = np.empty((balls, 3))
+    for k in range(balls):
+        i, j = divmod(k, side)
+        offset = (np.array([i, j]) - (side - 1) / 2) * (span / max(side - 1, 1))
+        out[k] = [centre[0] + offset[0], centre[1] + offset[1], top + 0.05 + 0.025 * k]
+    return out
+
+
 def scene(xml: Path, name: str, kind: str, top: float, bounds: np.ndarray, balls: int):
     """A compiled model: the object in ``xml`` plus a floor, and for ``balls`` a grid of balls."""
     import mujoco
@@ -92,15 +107,8 @@ def scene(xml: Path, name: str, kind: str, top: float, bounds: np.ndarray, balls
         body.quat = [np.cos(tilt / 2), np.sin(tilt / 2), 0.0, 0.0]
         return spec.compile()
     spec.delete(spec.joint(f"{name}_free"))  # fixed
-    side = int(np.ceil(np.sqrt(balls)))
-    centre = bounds.mean(axis=0)
-    span = 0.25 * (bounds[1] - bounds[0]).min()
-    for k in range(balls):
-        i, j = divmod(k, side)
-        offset = (np.array([i, j]) - (side - 1) / 2) * (span / max(side - 1, 1))
-        ball = spec.worldbody.add_body(name=f"ball_{k}", pos=[centre[0] + offset[0],
-                                                            centre[1] + offset[1],
-                                                            top + 0.05 + 0.025 * k])
+    for k, at in enumerate(ball_grid(bounds, top, balls)):
+        ball = spec.worldbody.add_body(name=f"ball_{k}", pos=at.tolist())
         ball.add_freejoint()
         ball.add_geom(type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[BALL, 0, 0], density=1000.0)
     return spec.compile()
@@ -251,14 +259,8 @@ def newton_model(hulls, kind: str, top: float, bounds: np.ndarray, balls: int, m
                             maxhullvert=0)
         add(body, mesh=shape, cfg=cfg)
     if kind == "balls":
-        side = int(np.ceil(np.sqrt(balls)))
-        centre = bounds.mean(axis=0)
-        span = 0.25 * (bounds[1] - bounds[0]).min()
-        for k in range(balls):
-            i, j = divmod(k, side)
-            offset = (np.array([i, j]) - (side - 1) / 2) * (span / max(side - 1, 1))
-            at = wp.vec3(centre[0] + offset[0], centre[1] + offset[1], top + 0.05 + 0.025 * k)
-            ball = builder.add_body(xform=wp.transform(at, wp.quat_identity()), label=f"ball_{k}")
+        for k, at in enumerate(ball_grid(bounds, top, balls)):
+            ball = builder.add_body(xform=wp.transform(wp.vec3(*at), wp.quat_identity()), label=f"ball_{k}")
             builder.add_shape_sphere(ball, radius=BALL)
     return newton_worlds(builder, worlds)
 
