@@ -274,8 +274,7 @@ def cut_decomposition(decomposer, cloud: OrientedCloud, feats: np.ndarray, param
         if params["merge"]:
             parts, concavity = decomposer.merge(leaves, params["threshold"])
     if not params["merge"]:
-        parts = [decomposer.tree.nodes[i].indices for i in leaves]
-        concavity = [decomposer.tree.nodes[i].concavity for i in leaves]
+        parts, concavity = decomposer.leaf_parts(leaves, params["threshold"])
     timings["merge"] = time.perf_counter() - t
     t = time.perf_counter()
     labels = np.empty(len(cloud), dtype=np.int64)

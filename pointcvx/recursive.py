@@ -329,6 +329,32 @@ class Decomposer:
                 progress(len(heap) + len(done), -heap[0][0] if heap else 0.0)
         return sorted(done + [node_id for _, node_id in heap])
 
+    def leaf_parts(self, leaves: list[int], threshold: float) -> tuple[list[np.ndarray], list[float]]:
+        """The parts (index arrays) and concavities of ``leaves``, strays absorbed.
+
+        A stray is a leaf too small to split (under ``2 * MIN_PART_POINTS`` points) whose
+        concavity is still above ``threshold``: a few scattered points (the tip of a thin
+        feature cut off by a split) whose hull would bridge empty space. Each of its points joins
+        the part of its nearest point in another leaf, and those parts are measured again.
+        """
+        parts = [self.tree.nodes[leaf].indices for leaf in leaves]
+        conc = [self.tree.nodes[leaf].concavity for leaf in leaves]
+        stray = {k for k, idx in enumerate(parts) if len(idx) < 2 * MIN_PART_POINTS and conc[k] > threshold}
+        if not stray or len(stray) == len(parts):
+            return parts, conc
+        keep = [k for k in range(len(parts)) if k not in stray]
+        owner = np.concatenate([np.full(len(parts[k]), j) for j, k in enumerate(keep)])
+        kept = np.concatenate([parts[k] for k in keep])
+        moved = np.concatenate([parts[k] for k in sorted(stray)])
+        _, nearest = cKDTree(self.points[kept]).query(self.points[moved])
+        to = owner[nearest]
+        parts, conc = [parts[k] for k in keep], [conc[k] for k in keep]
+        for j in np.unique(to):
+            parts[j] = np.sort(np.concatenate([parts[j], moved[to == j]]))
+            conc[j] = self.concavity(parts[j])
+        log.debug("absorbed %d stray parts (%d points)", len(stray), len(moved))
+        return parts, conc
+
     def merge(self, leaves: list[int], threshold: float) -> tuple[list[np.ndarray], list[float]]:
         """Greedily join neighbouring parts while the joint part stays under ``threshold``.
 
@@ -337,8 +363,9 @@ class Decomposer:
         of their joint concavity (see :meth:`concavity`), and the first whose full measure is at
         most ``threshold`` is merged.
         """
-        parts = {i: self.tree.nodes[leaf].indices for i, leaf in enumerate(leaves)}
-        conc = {i: self.tree.nodes[leaf].concavity for i, leaf in enumerate(leaves)}
+        first, first_conc = self.leaf_parts(leaves, threshold)
+        parts = dict(enumerate(first))
+        conc = dict(enumerate(first_conc))
         label = np.empty(len(self.points), dtype=np.int64)
         for i, idx in parts.items():
             label[idx] = i

@@ -105,3 +105,48 @@ def test_merge_joins_an_over_split_shape_and_reports_full_concavities():
     for idx, c in zip(parts, conc, strict=True):
         assert c <= 0.15
         assert c == pytest.approx(dec.concavity(idx), abs=1e-12)
+
+
+def test_stray_leaves_join_their_nearest_parts():
+    """A leaf of a few scattered points (too small to split, above the threshold: its hull
+    would span the L's notch) is dissolved into the parts nearest to each of its points."""
+    from scipy.spatial import cKDTree
+
+    dec = pointcvx.decompose(l_block(), threshold=0.005, max_hulls=10, merge=False,
+                             n_points=6000, seed=0)._decomposer
+    leaves = dec.cut(0.005, 10)
+    # Points on the cube's top and at the far end of the bar (normalised frame: the notch is
+    # x in [0, 1], z in [0, 1]).
+    targets = np.array([[-0.1, 0.0, 1.0], [-0.1, 0.4, 1.0], [1.0, 0.0, -0.1], [1.0, 0.4, -0.5],
+                        [1.0, -0.4, -0.5]])
+    stray = np.unique(cKDTree(dec.points).query(targets)[1])
+    assert 0 < len(stray) < 8
+    rest_leaves = []
+    for leaf in leaves:
+        idx = dec.tree.nodes[leaf].indices
+        rest = np.setdiff1d(idx, stray)
+        if len(rest) < len(idx):
+            leaf = dec.tree.add(leaf, rest, dec.concavity(rest)).id
+        rest_leaves.append(leaf)
+    s = dec.tree.add(None, stray, dec.concavity(stray))
+    threshold = 0.15
+    assert s.concavity > threshold  # the precondition: a stray
+
+    for parts, conc in (dec.leaf_parts(rest_leaves + [s.id], threshold),
+                        dec.merge(rest_leaves + [s.id], threshold)):
+        assert np.array_equal(np.sort(np.concatenate(parts)), np.arange(len(dec.points)))
+        assert min(len(p) for p in parts) >= 8
+        assert max(conc) < s.concavity
+        for idx, c in zip(parts, conc, strict=True):
+            assert c == pytest.approx(dec.concavity(idx), abs=1e-12)
+    parts, _ = dec.leaf_parts(rest_leaves + [s.id], threshold)
+    assert len(parts) == len(rest_leaves)
+    label = np.empty(len(dec.points), dtype=int)
+    for i, idx in enumerate(parts):
+        label[idx] = i
+    others = np.setdiff1d(np.arange(len(dec.points)), stray)
+    _, nearest = cKDTree(dec.points[others]).query(dec.points[stray])
+    assert np.array_equal(label[stray], label[others[nearest]])
+    # Without a stray the leaves are the parts, unchanged.
+    parts, conc = dec.leaf_parts(leaves, 1.0)
+    assert all(np.array_equal(p, dec.tree.nodes[leaf].indices) for p, leaf in zip(parts, leaves, strict=True))
