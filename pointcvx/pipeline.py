@@ -273,8 +273,8 @@ def cut_decomposition(decomposer, cloud: OrientedCloud, feats: np.ndarray, param
         t = time.perf_counter()
         if params["merge"]:
             parts, concavity = decomposer.merge(leaves, params["threshold"])
-    if not params["merge"]:
-        parts, concavity = decomposer.leaf_parts(leaves, params["threshold"])
+        else:
+            parts, concavity = decomposer.leaf_parts(leaves, params["threshold"])
     timings["merge"] = time.perf_counter() - t
     t = time.perf_counter()
     labels = np.empty(len(cloud), dtype=np.int64)
