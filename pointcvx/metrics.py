@@ -468,21 +468,48 @@ def _concavity_terms(hb_part: float, hb_hull: float, hull_volume: float, part_vo
 
 
 # ------------------------------------------------------------------- concavity during decomposition
-def _max_outside(solid, samples: np.ndarray, dist: np.ndarray) -> float:
-    """max of (n,) ``dist`` over the (n, 3) ``samples`` not inside ``solid`` (0 if none).
+#: Hull-surface samples closer than this to the solid's surface lie on the shape, not in the
+#: air (normalised frame).
+SURFACE_TOL = 1e-3
+#: A part's samples leave gaps of up to about this many times their typical spacing.
+GAP_SPACINGS = 4.0
 
+
+def _max_outside(solid, samples: np.ndarray, dist: np.ndarray, surface_gap: float = 0.0,
+                 tol: float = SURFACE_TOL) -> float:
+    """max of (n,) ``dist`` over the (n, 3) hull-surface ``samples`` that are concavity (0 if
+    none): those in the air (outside ``solid``), and those on the solid's surface (within
+    ``tol``) further than ``surface_gap`` from the part.
+
+    A sample on the surface near the part sits on a face the part shares with its hull, in a gap
+    between the part's samples: not concavity. One on the surface far from the part lies on
+    *another* part's face: the hull spreads over it. (The inside test of a point on the surface
+    depends on the face's orientation, so surface samples are told apart by distance first.)
     Tests samples in decreasing order of ``dist``, in growing batches, and stops at the first
-    batch holding a sample outside: exact, and cheap unless most far samples are inside.
+    batch holding one that counts: exact, and cheap unless most far samples are inside.
     """
     order = np.argsort(-dist)
     s, step = 0, 64
     while s < len(order):
         chunk = order[s : s + step]
-        out = ~solid.contains(samples[chunk])
-        if out.any():
-            return float(dist[chunk[int(np.argmax(out))]])
+        on_surface = solid.distance(samples[chunk]) <= tol
+        counts = on_surface & (dist[chunk] > surface_gap)
+        air = np.flatnonzero(~on_surface)
+        if len(air):
+            counts[air] = ~solid.contains(samples[chunk[air]])
+        if counts.any():
+            return float(dist[chunk[int(np.argmax(counts))]])
         s, step = s + step, 4 * step
     return 0.0
+
+
+def sample_spacing(points: np.ndarray) -> float:
+    """Median distance from each of the (n, 3) ``points`` to its nearest neighbour."""
+    from scipy.spatial import cKDTree
+
+    if len(points) < 2:
+        return 0.0
+    return float(np.median(cKDTree(points).query(points, k=2)[0][:, 1]))
 
 
 def part_concavity(
@@ -494,6 +521,7 @@ def part_concavity(
     n_hull_samples: int = 1000,
     n_volume_samples: int = 1000,
     seed: int = 0,
+    surface_gap: float | None = None,
     return_terms: bool = False,
 ):
     """Concavity of a part known by its surface samples, inside the whole shape's solid.
@@ -514,6 +542,10 @@ def part_concavity(
         Samples of the hull's surface (for Hb) and of its volume (for Rv).
     seed : int
         Seeds both samplings; same input and seed, same result.
+    surface_gap : float, optional
+        The largest gap expected between neighbouring part samples (default: ``GAP_SPACINGS``
+        times their median spacing). Hull-surface samples on the solid's surface and within
+        this of the part lie on the part's own faces and are not concavity.
     return_terms : bool
         Return a dict of the terms instead of the concavity alone.
 
@@ -540,8 +572,12 @@ def part_concavity(
 
     ``solid=None``: ``Hb`` counts every hull-surface sample and ``Rv = 0``.
 
-    The hull -> part direction measures distances to the nearest *sample*, so it carries a floor
-    of roughly the samples' spacing (largest gap between neighbouring samples).
+    The hull -> part direction measures distances to the nearest *sample*. Where a face of the
+    part is also a face of its hull (a box, a flat CAD face), hull samples lie on the solid's
+    surface, between part samples: they are skipped when within ``surface_gap`` of the part, so
+    a convex part measures 0 whatever its sampling density. A hull face spread over the surface of
+    *another* part (two boxes of an L grouped into overlapping hulls) is further than that from
+    the part's samples and still counts.
     """
     pts = _as_points(points)
     if len(pts) == 0:
@@ -562,7 +598,9 @@ def part_concavity(
             vs = _sample_hull_interior(hull, int(n_volume_samples), rng)
             outside_fraction = float(1.0 - solid.contains(vs).mean())
             part_volume = hull.volume * (1.0 - outside_fraction)
-        hb_hull = _max_outside(solid, hs, d_hs)
+        if surface_gap is None:
+            surface_gap = GAP_SPACINGS * sample_spacing(pts)
+        hb_hull = _max_outside(solid, hs, d_hs, surface_gap)
     terms = _concavity_terms(hb_part, hb_hull, hull.volume, part_volume, k)
     terms["outside_fraction"] = outside_fraction
     return terms if return_terms else terms["concavity"]

@@ -236,13 +236,13 @@ def decompose(
     t = time.perf_counter()
     solid = solid_for(cloud)
     timings["solid"] = time.perf_counter() - t
-    t = time.perf_counter()
-    _, feats = compute_features(cloud, solid, method=features, seed=seed, model=model,
-                                views=int(views), progress=progress)
-    timings["features"] = time.perf_counter() - t
+    # Features are computed when the first split needs them: a shape already under the
+    # threshold (a convex part) is one hull without them.
+    feature_step = functools.partial(_feature_array, cloud, solid, method=features, seed=seed,
+                                     model=model, views=int(views))
     t = time.perf_counter()
     with threadpool_limits(1):
-        decomposer = Decomposer(cloud.points, cloud.normals, feats, solid, split=split,
+        decomposer = Decomposer(cloud.points, cloud.normals, feature_step, solid, split=split,
                                 is_mesh=cloud.mesh is not None, blend=blend, seed=seed)
     timings["tree"] = time.perf_counter() - t
     params = {"threshold": float(threshold), "max_hulls": int(max_hulls), "features": features,
@@ -251,19 +251,30 @@ def decompose(
               "n_points": int(n_points),
               "seed": int(seed), **load_options}
     timings["_start"] = t0
-    result = cut_decomposition(decomposer, cloud, feats, params, timings, progress=progress)
+    result = cut_decomposition(decomposer, cloud, params, timings, progress=progress)
     if limits is not None:
         result = result.limit_hulls(limits.target, limits.max_vertices, limits.max_faces)
     return result
 
 
-def cut_decomposition(decomposer, cloud: OrientedCloud, feats: np.ndarray, params: dict,
+def _feature_array(cloud: OrientedCloud, solid, progress: Progress | None = None,
+                   **options: Any) -> np.ndarray:
+    """(n, k) float32 features of ``cloud.points`` (:func:`compute_features` without the source)."""
+    return compute_features(cloud, solid, progress=progress, **options)[1]
+
+
+def cut_decomposition(decomposer, cloud: OrientedCloud, params: dict,
                       timings: dict, progress: Progress | None = None) -> Decomposition:
     """Cut ``decomposer``'s tree at ``params`` (threshold, max_hulls, merge) into a result."""
     from .metrics import convex_hull
 
     timings = dict(timings)
     start = timings.pop("_start", None)
+    if decomposer.will_split(params["threshold"], params["max_hulls"]):
+        # Outside the single-thread limit below: the model's forward pass uses every core.
+        timings["features"] = timings.get("features", 0.0) + decomposer.load_features(progress)
+    else:
+        timings.setdefault("features", 0.0)
     t = time.perf_counter()
     report = None if progress is None else (
         lambda n, worst: progress("split", n, params["max_hulls"]))
@@ -290,5 +301,5 @@ def cut_decomposition(decomposer, cloud: OrientedCloud, feats: np.ndarray, param
         timings["total"] = time.perf_counter() - start
     else:
         timings["total"] = sum(v for k, v in timings.items() if k != "total")
-    return Decomposition(hulls, labels, cloud, feats.astype(np.float32),
-                         decomposer.tree.as_table(), timings, params, _decomposer=decomposer)
+    return Decomposition(hulls, labels, cloud, decomposer.tree.as_table(), timings, params,
+                         _decomposer=decomposer)

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import heapq
 import logging
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -23,7 +24,7 @@ from scipy.sparse import csgraph
 from scipy.spatial import cKDTree
 
 from .errors import InputError
-from .metrics import convex_hull, hull_contains, part_concavity
+from .metrics import GAP_SPACINGS, convex_hull, hull_contains, part_concavity
 
 log = logging.getLogger(__name__)
 
@@ -87,6 +88,21 @@ def neighbour_graph(points: np.ndarray, k: int = 10, radius_factor: float = 3.0)
     return ((graph + graph.T) > 0).astype(np.float64).tocsr()
 
 
+#: Concavities below this count as 0 when split proposals are ranked (normalised frame; the
+#: measure's numerical noise on an exactly convex part).
+CONCAVITY_TIE = 1e-3
+
+
+def split_score(a: tuple[float, float], b: tuple[float, float]) -> tuple[float, float, float]:
+    """Rank of a two-way split from its children's (concavity, hull volume): the more concave
+    child first, then the pair's sum. Between cuts into two convex children (both below
+    :data:`CONCAVITY_TIE`) the lower total hull volume wins: the one whose hulls overlap least
+    (an L cut into its two boxes, not into overlapping ones). Lower is better."""
+    (ca, va), (cb, vb) = a, b
+    ca, cb = (c if c >= CONCAVITY_TIE else 0.0 for c in (ca, cb))
+    return (max(ca, cb), ca + cb, va + vb if ca + cb == 0.0 else 0.0)
+
+
 class Decomposer:
     """Recursive splitting of one shape, with memoised splits so cuts can be redone cheaply.
 
@@ -94,8 +110,9 @@ class Decomposer:
     ----------
     points, normals : (n, 3) float
         The oriented cloud in the normalised frame.
-    features : (n, k) float
-        Unit features of the points.
+    features : (n, k) float, or a callable ``f(progress=None) -> (n, k) float``
+        Unit features of the points. A callable is called once, when they are first needed
+        (:meth:`load_features`): a shape already under the threshold never pays for them.
     solid : pointcvx.solid.Solid
         The shape's inside (for the concavity's outside test and volume term).
     split : {"auto", "kmeans", "ward"}
@@ -129,7 +146,8 @@ class Decomposer:
             raise InputError(f"unknown split method {split!r}; expected one of {SPLIT_METHODS}")
         self.points = np.asarray(points, dtype=np.float64)
         self.normals = np.asarray(normals, dtype=np.float64)
-        self.features = np.asarray(features, dtype=np.float64)
+        self._features = features if callable(features) else np.asarray(features, dtype=np.float64)
+        self.feature_seconds = 0.0
         self.solid = solid
         # "auto" is k-means for every modality: on vhacd61 it gave fewer hulls at the same
         # concavity than Ward with connectivity on meshes (docs/decomposition.md).
@@ -155,9 +173,36 @@ class Decomposer:
         root = np.arange(len(self.points))
         self.tree.add(None, root, self.concavity(root))
 
+    # ------------------------------------------------------------------ features
+    @property
+    def features(self) -> np.ndarray:
+        """(n, k) float64 unit features (computed on first use)."""
+        self.load_features()
+        return self._features
+
+    def load_features(self, progress=None) -> float:
+        """Compute the features if they are still pending; returns the seconds it took (0.0
+        when they were already there). ``progress`` is passed to the feature callable."""
+        if not callable(self._features):
+            return 0.0
+        t = time.perf_counter()
+        self._features = np.asarray(self._features(progress=progress), dtype=np.float64)
+        seconds = time.perf_counter() - t
+        self.feature_seconds += seconds
+        return seconds
+
+    def will_split(self, threshold: float, max_hulls: int) -> bool:
+        """Whether :meth:`cut` at these settings splits anything (the root is above the
+        threshold and more than one hull is allowed), i.e. needs the features."""
+        return self.tree.nodes[0].concavity > threshold and max_hulls > 1
+
     # ------------------------------------------------------------------ measures
     def concavity(self, indices: np.ndarray, coarse: bool = False) -> float:
-        """Concavity of the part made of the points ``indices``.
+        """Concavity of the part made of the points ``indices`` (see :meth:`measure`)."""
+        return self.measure(indices, coarse)[0]
+
+    def measure(self, indices: np.ndarray, coarse: bool = False) -> tuple[float, float]:
+        """(concavity, volume of the convex hull) of the part made of the points ``indices``.
 
         As in the evaluation protocol (the shape intersected with the part's hull), the surface
         of the piece is every cloud point inside the part's hull, the part's own and any other
@@ -170,6 +215,7 @@ class Decomposer:
         self.evaluations += 1
         n_samples = min(self.concavity_samples, self.rank_samples) if coarse else self.concavity_samples
         cut = None
+        n_part = len(indices)
         if coarse and len(indices) > self.rank_points:
             # The part's rank_points points of lowest priority: exactly its points of priority
             # <= cut, so the same cut applied to the other points takes the same share of them.
@@ -178,7 +224,7 @@ class Decomposer:
             cut = self._priority[indices].max()
         pts = self.points[indices]
         if len(pts) < 4:
-            return 0.0
+            return 0.0, 0.0
         hull = convex_hull(pts)
         lo, hi = hull.bounds
         near = np.all((self.points >= lo) & (self.points <= hi), axis=1)
@@ -191,8 +237,11 @@ class Decomposer:
             swallowed = near[hull_contains(hull, near, tol=-1e-3)]
             if len(swallowed):
                 pts = np.concatenate([pts, swallowed])
-        return float(part_concavity(pts, self.solid, hull=hull, n_hull_samples=n_samples,
-                                    n_volume_samples=n_samples, seed=self.seed))
+        # The gaps between the part's samples: the cloud's, wider in a coarse subsample.
+        gap = GAP_SPACINGS * self.spacing * (np.sqrt(n_part / len(indices)) if cut is not None else 1.0)
+        conc = part_concavity(pts, self.solid, hull=hull, n_hull_samples=n_samples,
+                              n_volume_samples=n_samples, seed=self.seed, surface_gap=gap)
+        return float(conc), float(hull.volume)
 
     def coarse_margin(self, n_points: int) -> float:
         """How far above the full concavity the coarse estimate of a part of ``n_points``
@@ -257,15 +306,15 @@ class Decomposer:
             if any(np.count_nonzero(side != other) <= 0.005 * len(idx)
                    or np.count_nonzero(side == other) <= 0.005 * len(idx) for _, other in scored):
                 continue  # (nearly) a proposal already scored
-            ca, cb = self.concavity(idx[~side], coarse=True), self.concavity(idx[side], coarse=True)
-            scored.append(((max(ca, cb), ca + cb), side))
+            scored.append((split_score(self.measure(idx[~side], coarse=True),
+                                       self.measure(idx[side], coarse=True)), side))
         if not scored:
             return None
         # The best coarse proposals get the full measure; the best of those is kept.
         best = None
         for _, side in sorted(scored, key=lambda item: item[0])[: self.refine]:
-            ca, cb = self.concavity(idx[~side]), self.concavity(idx[side])
-            score = (max(ca, cb), ca + cb)
+            (ca, va), (cb, vb) = self.measure(idx[~side]), self.measure(idx[side])
+            score = split_score((ca, va), (cb, vb))
             if best is None or score < best[0]:
                 best = (score, side, ca, cb)
         _, side, ca, cb = best

@@ -63,7 +63,8 @@ class Decomposition:
     cloud : OrientedCloud
         The points that were decomposed (normalised frame; ``cloud.normalization`` maps back).
     features : (n, k) float32
-        The features used for splitting.
+        The convex-aware features of the cloud's points (a property: a shape that needed no
+        split has them computed on first access).
     tree : list of dict
         The split tree (id, parent, children, points, concavity), root first.
     timings : dict of str -> float
@@ -75,11 +76,20 @@ class Decomposition:
     hulls: list[ConvexHull]
     labels: np.ndarray
     cloud: OrientedCloud
-    features: np.ndarray
     tree: list[dict]
     timings: dict[str, float]
     params: dict[str, Any]
     _decomposer: Any = field(default=None, repr=False)
+    _features: np.ndarray | None = field(default=None, repr=False)
+
+    @property
+    def features(self) -> np.ndarray:
+        """(n, k) float32 features of ``cloud.points``."""
+        if self._features is None:
+            if self._decomposer is None:
+                raise OutputError("this decomposition holds no features")
+            self._features = self._decomposer.features.astype(np.float32)
+        return self._features
 
     def __len__(self) -> int:
         return len(self.hulls)
@@ -123,8 +133,8 @@ class Decomposition:
               merge: bool | None = None) -> Decomposition:
         """The same features and split tree cut at another threshold or hull count.
 
-        Splits already made are reused; deeper ones are computed on demand. Nothing about the
-        features is recomputed.
+        Splits already made are reused; deeper ones are computed on demand. Features are never
+        recomputed (a shape that needed no split computes them here if the new cut splits).
         """
         from .pipeline import cut_decomposition
 
@@ -138,8 +148,7 @@ class Decomposition:
             params["max_hulls"] = int(max_hulls)
         if merge is not None:
             params["merge"] = bool(merge)
-        out = cut_decomposition(self._decomposer, self.cloud, self.features, params,
-                                dict(self.timings))
+        out = cut_decomposition(self._decomposer, self.cloud, params, dict(self.timings))
         limits = params.get("hull_limits")
         if limits:
             out = out.limit_hulls(limits.get("target"), limits.get("max_vertices"),

@@ -101,6 +101,27 @@ def test_recut_reuses_the_tree(l_result):
     assert [n["id"] for n in l_result.tree][:1] == [0]
 
 
+def test_a_shape_under_the_threshold_skips_the_features():
+    """A convex part is one hull at once: no feature step (several seconds with per-shape
+    optimisation), even with few samples (whose gaps on flat faces used to read as concavity
+    and split a cube into dozens of hulls)."""
+    cube = trimesh.creation.box(extents=[1.0, 2.0, 0.5])
+    for n in (3000, 20000):
+        result = pointcvx.decompose(cube, n_points=n, seed=0)
+        assert len(result) == 1 and result.max_concavity < 0.01
+        assert result.timings["features"] == 0.0
+        assert callable(result._decomposer._features)  # still pending
+    assert result.features.shape == (len(result.labels), 32)  # computed when asked for
+    # An L at a threshold above its concavity: one hull, no features; a finer re-cut needs
+    # them, computes them once and splits.
+    loose = pointcvx.decompose(l_block(), threshold=0.6, **FAST)
+    assert len(loose) == 1 and loose.timings["features"] == 0.0
+    fine = loose.recut(threshold=0.1)
+    assert len(fine) == 2 and fine.timings["features"] > 0.0
+    assert fine.features.shape == (len(fine.labels), 32)
+    assert loose._decomposer.feature_seconds == fine.timings["features"]
+
+
 def test_result_exports_and_conversions(l_result, tmp_path):
     out = tmp_path / "l.obj"
     assert l_result.export(out) == [out]
@@ -165,6 +186,9 @@ def test_api_accepts_arrays_open3d_and_clouds():
         pointcvx.decompose(mesh, threshold=-1)
     with pytest.raises(pointcvx.InputError):
         pointcvx.decompose({"not": "a shape"})
+    # load reads files; objects get a typed error that points to decompose
+    with pytest.raises(pointcvx.InputError, match="pointcvx.decompose"):
+        pointcvx.load(mesh)
 
 
 def test_cli_decompose_and_evaluate(tmp_path, capsys):

@@ -118,10 +118,13 @@ def test_hull_samples_lie_on_and_in_the_hull():
 # ---------------------------------------------------------------------------- part concavity
 def test_part_concavity_of_convex_shapes_is_near_zero():
     for mesh in (box([-1, -1, -1], [1, 1, 1]), trimesh.creation.icosphere(4)):
-        pts = sample_surface(mesh, 20000, seed=0)[0]
-        terms = part_concavity(pts, Solid.from_trimesh(mesh), return_terms=True)
-        assert terms["hb_part"] < 0.02 and terms["rv"] * K < 0.02
-        assert terms["concavity"] < 0.08  # the floor: gaps between 20k samples
+        # Sparse samples leave gaps of 0.1-0.2 on the box's faces: hull samples there lie on the
+        # shape, not in the air, and must not read as concavity (no sampling floor).
+        for n in (20000, 3000, 500):
+            pts = sample_surface(mesh, n, seed=0)[0]
+            terms = part_concavity(pts, Solid.from_trimesh(mesh), return_terms=True)
+            assert terms["hb_part"] < 0.02 and terms["rv"] * K < 0.02
+            assert terms["concavity"] < 0.02, (n, terms)
 
 
 def test_part_concavity_of_l_block_matches_analytic():
@@ -141,7 +144,7 @@ def test_part_concavity_of_l_split_into_boxes_is_near_zero():
     pts = sample_surface(L, 20000, seed=0)[0]
     in_a = (pts[:, 1] < 1.0 - 1e-9) | ((pts[:, 1] <= 1.0 + 1e-9) & (pts[:, 0] > 1.0))
     for part in (pts[in_a], pts[~in_a]):
-        assert part_concavity(part, solid) < 0.08
+        assert part_concavity(part, solid) < 0.02
 
 
 def test_cut_cap_is_not_concavity():
@@ -151,7 +154,7 @@ def test_cut_cap_is_not_concavity():
     whole = part_concavity(pts, solid)
     for half in (pts[pts[:, 2] > 0], pts[pts[:, 2] < 0]):
         t = part_concavity(half, solid, return_terms=True)
-        assert t["concavity"] < 0.08 and t["concavity"] < whole + 0.03
+        assert t["concavity"] < 0.02 and whole < 0.02
         assert t["outside_fraction"] == 0.0
         # without the solid the open cut counts: the cap's centre is ~1 from the samples
         assert part_concavity(half, None) > 0.8

@@ -55,7 +55,7 @@ def test_dropped_mug_comes_to_rest_standing_on_the_floor(mujoco, mug, tmp_path):
     assert model.body_mass[model.body("mug").id] == pytest.approx(
         1000.0 * sum(h.volume for h in mug.hulls), rel=1e-4)
     heights = []
-    for _ in range(int(2.0 / model.opt.timestep)):
+    for _ in range(int(3.0 / model.opt.timestep)):
         mujoco.mj_step(model, data)
         heights.append(_collision_vertices(mujoco, model, data)[:, 2].min())
     verts = _collision_vertices(mujoco, model, data)
@@ -69,7 +69,9 @@ def test_dropped_mug_comes_to_rest_standing_on_the_floor(mujoco, mug, tmp_path):
 
 
 def _drop_ball(mujoco, result, folder, name):
-    """Where a 1 cm ball dropped over the middle of the fixed mug is after each second."""
+    """Where a 1 cm ball dropped over the middle of the fixed mug is after each second, and its
+    final linear speed (a ball resting on a flat bottom may still roll slowly: MuJoCo has no
+    rolling friction by default, so its angular velocity says nothing about settling)."""
     xml = result.export(folder / f"{name}.xml", free_joint=False)[0]
     spec = _scene(mujoco, xml, name, (0.0, 0.0, 0.0))
     ball = spec.worldbody.add_body(name="ball", pos=[0.0, 0.0, 0.15])
@@ -83,7 +85,7 @@ def _drop_ball(mujoco, result, folder, name):
         for _ in range(steps):
             mujoco.mj_step(model, data)
         track.append(data.body("ball").xpos.copy())
-    return np.array(track), float(np.abs(data.qvel).max())
+    return np.array(track), float(np.linalg.norm(data.qvel[:3]))
 
 
 def _inside(p) -> bool:

@@ -14,6 +14,7 @@ import os
 import time
 
 from ..cloud import OrientedCloud, check_extent
+from ..errors import InputError
 from .options import LoadOptions
 from .sniff import Detected, detect
 
@@ -72,6 +73,9 @@ def load(path: str | os.PathLike, options: LoadOptions | None = None, **kwargs) 
     opts = options if options is not None else LoadOptions.from_kwargs(**kwargs)
     if options is not None and kwargs:
         raise TypeError("pass either options or keyword arguments, not both")
+    if not isinstance(path, (str, bytes)) and not hasattr(path, "__fspath__"):
+        raise InputError(f"load takes a file path, not a {type(path).__name__}; pass arrays, "
+                         "trimesh or open3d objects to pointcvx.decompose (or pointcvx.pipeline.as_cloud)")
     t0 = time.perf_counter()
     found = detect(path)
     log.debug("%s: detected %s (%s)", path, found.format, found.modality)
