@@ -224,6 +224,10 @@ def decompose(
 
     if split not in SPLIT_METHODS:
         raise InputError(f"unknown split method {split!r}; expected one of {SPLIT_METHODS}")
+    if features not in FEATURE_METHODS:
+        raise InputError(f"unknown feature method {features!r}; expected one of {FEATURE_METHODS}")
+    if features == "model":
+        load_cached_model(model)  # a missing or broken checkpoint fails now, not at the first split
     limits = None
     if target is not None or max_hull_vertices is not None:
         from .simplify import hull_limits
@@ -270,11 +274,13 @@ def cut_decomposition(decomposer, cloud: OrientedCloud, params: dict,
 
     timings = dict(timings)
     start = timings.pop("_start", None)
+    # The features are computed once per decomposer, when a cut first splits; every cut that
+    # splits reports their time, whichever computed them, and a cut that does not reports 0.
+    timings["features"] = 0.0
     if decomposer.will_split(params["threshold"], params["max_hulls"]):
         # Outside the single-thread limit below: the model's forward pass uses every core.
-        timings["features"] = timings.get("features", 0.0) + decomposer.load_features(progress)
-    else:
-        timings.setdefault("features", 0.0)
+        decomposer.load_features(progress)
+        timings["features"] = decomposer.feature_seconds
     t = time.perf_counter()
     report = None if progress is None else (
         lambda n, worst: progress("split", n, params["max_hulls"]))

@@ -5,7 +5,8 @@ Parts are sets of surface points (indices into the cloud). A max-heap keyed by c
 the part to split. A split clusters the part's points on [features, lambda * xyz] (k-means, or
 Ward linkage constrained to the surface neighbour graph) for a few values of lambda, adds the
 median plane across the part's longest axis, and keeps the proposal whose more concave child is
-least concave. Disconnected parts are first split into components. Every split is kept in a
+least concave (between cuts into two convex children, the one whose hulls hold the least volume:
+:func:`split_score`). Disconnected parts are first split into components. Every split is kept in a
 binary tree, so the same feature field can be re-cut at another threshold or hull count without
 recomputing anything.
 """
@@ -194,7 +195,7 @@ class Decomposer:
     def will_split(self, threshold: float, max_hulls: int) -> bool:
         """Whether :meth:`cut` at these settings splits anything (the root is above the
         threshold and more than one hull is allowed), i.e. needs the features."""
-        return self.tree.nodes[0].concavity > threshold and max_hulls > 1
+        return not (self.tree.nodes[0].concavity <= threshold) and max_hulls > 1
 
     # ------------------------------------------------------------------ measures
     def concavity(self, indices: np.ndarray, coarse: bool = False) -> float:
@@ -206,7 +207,10 @@ class Decomposer:
 
         As in the evaluation protocol (the shape intersected with the part's hull), the surface
         of the piece is every cloud point inside the part's hull, the part's own and any other
-        part's that the hull swallows (see metrics.part_concavity for the measure itself).
+        part's that the hull swallows (see metrics.part_concavity for the measure itself). One
+        difference from the protocol, on purpose: a hull face lying on *another* part's face of
+        the surface (beyond the gap between samples) counts, where the shape intersected with the
+        hull would not; cuts whose hulls overlap rank worse.
 
         ``coarse``: a cheaper estimate for ranking proposals, from at most ``rank_points`` of
         the part's points (and of the swallowed ones, the same share) and ``rank_samples``
@@ -246,8 +250,10 @@ class Decomposer:
     def coarse_margin(self, n_points: int) -> float:
         """How far above the full concavity the coarse estimate of a part of ``n_points``
         points can read: a coarse subsample of ``rank_points`` points is sparser than the cloud
-        by ``sqrt(n_points / rank_points)``, and the hull-to-part distance reads the gaps
-        between the kept points (about two spacings at worst)."""
+        by ``sqrt(n_points / rank_points)``, and the hull-to-part distance of hull samples in the
+        air reads the gaps between the kept points (about two spacings at worst). (Samples on
+        the surface are skipped within a gap scaled the same way, so the coarse estimate may
+        also read lower; :meth:`merge` only uses it to rule pairs out, with this margin.)"""
         if n_points <= self.rank_points:
             return 0.0
         return 2.0 * self.spacing * float(np.sqrt(n_points / self.rank_points))

@@ -64,7 +64,8 @@ class Decomposition:
         The points that were decomposed (normalised frame; ``cloud.normalization`` maps back).
     features : (n, k) float32
         The convex-aware features of the cloud's points (a property: a shape that needed no
-        split has them computed on first access).
+        split has them computed on first access; the constructor takes them, if known, as
+        ``_features``, else from ``_decomposer``).
     tree : list of dict
         The split tree (id, parent, children, points, concavity), root first.
     timings : dict of str -> float

@@ -4,6 +4,7 @@ re-cutting, determinism, every modality, and the decompose/evaluate commands."""
 from __future__ import annotations
 
 import json
+import pickle
 
 import numpy as np
 import pytest
@@ -111,7 +112,9 @@ def test_a_shape_under_the_threshold_skips_the_features():
         assert len(result) == 1 and result.max_concavity < 0.01
         assert result.timings["features"] == 0.0
         assert callable(result._decomposer._features)  # still pending
+    copy = pickle.loads(pickle.dumps(result))  # pending features travel as their recipe
     assert result.features.shape == (len(result.labels), 32)  # computed when asked for
+    assert np.array_equal(copy.features, result.features)  # same seed, same features
     # An L at a threshold above its concavity: one hull, no features; a finer re-cut needs
     # them, computes them once and splits.
     loose = pointcvx.decompose(l_block(), threshold=0.6, **FAST)
@@ -120,6 +123,14 @@ def test_a_shape_under_the_threshold_skips_the_features():
     assert len(fine) == 2 and fine.timings["features"] > 0.0
     assert fine.features.shape == (len(fine.labels), 32)
     assert loose._decomposer.feature_seconds == fine.timings["features"]
+    # Computed once: a second re-cut reports the same feature time, a cut without split none.
+    assert loose.recut(threshold=0.1).timings["features"] == fine.timings["features"]
+    assert loose.recut(threshold=0.6).timings["features"] == 0.0
+    # Bad feature settings fail at once, even for a shape that never splits.
+    with pytest.raises(pointcvx.InputError):
+        pointcvx.decompose(cube, features="bogus")
+    with pytest.raises(pointcvx.InputError, match="no such model"):
+        pointcvx.decompose(cube, features="model", model="/nonexistent/model.pt")
 
 
 def test_result_exports_and_conversions(l_result, tmp_path):

@@ -110,12 +110,39 @@ def test_merge_joins_an_over_split_shape_and_reports_full_concavities():
     # An L is two boxes: the pieces of each merge back, the two boxes never join.
     parts, conc = dec.merge(leaves, threshold=0.15)
     assert len(parts) == 2
-    # Ten pieces merge into the L's two boxes (up to slivers the cuts moved between them): the
-    # L itself is far above the threshold, so the two never join.
-    assert dec.concavity(np.arange(len(dec.points))) > 0.4
+    # Ten pieces merge back into the L's two boxes (up to slivers the cuts moved between them).
+    # Normalised frame: the bar is x in [-1, 1], z in [-1, 0], the cube on it x in [-1, 0],
+    # z in [0, 1]; the other way to cut an L is its column (x <= 0) and the rest (x >= 0).
+    boxes = {"bar": ((-1, 1), (-1, 0)), "cube": ((-1, 0), (0, 1)),
+             "column": ((-1, 0), (-1, 1)), "block": ((0, 1), (-1, 0))}
+
+    def share(idx, box):
+        (x0, x1), (z0, z1) = box
+        p = dec.points[idx]
+        eps = 1e-6
+        return np.mean((p[:, 0] >= x0 - eps) & (p[:, 0] <= x1 + eps)
+                       & (p[:, 2] >= z0 - eps) & (p[:, 2] <= z1 + eps))
+
+    shares = {b: sorted(share(idx, boxes[b]) for idx in parts) for b in boxes}
+    assert any(min(share(parts[0], boxes[a]), share(parts[1], boxes[b])) > 0.95
+               for a, b in (("bar", "cube"), ("cube", "bar"), ("column", "block"),
+                            ("block", "column"))), shares
     for idx, c in zip(parts, conc, strict=True):
         assert c <= 0.15
         assert c == pytest.approx(dec.concavity(idx), abs=1e-12)
+
+
+def test_split_score_ranks_concavity_first_and_breaks_convex_ties_by_volume():
+    from pointcvx.recursive import split_score
+
+    # The more concave child decides, then the sum; hull volume never outweighs concavity.
+    assert split_score((0.05, 9.0), (0.02, 9.0)) < split_score((0.06, 1.0), (0.0, 1.0))
+    assert split_score((0.05, 9.0), (0.01, 9.0)) < split_score((0.05, 1.0), (0.02, 1.0))
+    # Between two cuts into convex children (noise below 1e-3 counts as 0) the one whose hulls
+    # hold less volume wins: it overlaps less.
+    assert split_score((5e-4, 1.8), (0.0, 1.2)) < split_score((0.0, 2.0), (1e-15, 2.0))
+    # A convex pair beats a pair with any real concavity, whatever the volumes.
+    assert split_score((0.0, 5.0), (0.0, 5.0)) < split_score((2e-3, 1.0), (0.0, 1.0))
 
 
 def test_stray_leaves_join_their_nearest_parts():
