@@ -25,7 +25,7 @@ from scipy.sparse import csgraph
 from scipy.spatial import cKDTree
 
 from .errors import InputError
-from .metrics import GAP_SPACINGS, convex_hull, hull_contains, part_concavity
+from .metrics import GAP_SPACINGS, convex_hull, hull_contains, part_concavity, sample_spacing
 
 log = logging.getLogger(__name__)
 
@@ -167,7 +167,7 @@ class Decomposer:
         # points of lowest priority, the same points whichever proposal the part comes from.
         self._priority = np.random.default_rng(self.seed).permutation(len(self.points))
         # Typical distance between neighbouring points (for the coarse estimate's error bound).
-        self.spacing = float(np.median(cKDTree(self.points).query(self.points, k=2)[0][:, 1]))
+        self.spacing = sample_spacing(self.points)
         self.graph = neighbour_graph(self.points)
         self.tree = SplitTree()
         self.evaluations = 0
@@ -181,16 +181,14 @@ class Decomposer:
         self.load_features()
         return self._features
 
-    def load_features(self, progress=None) -> float:
-        """Compute the features if they are still pending; returns the seconds it took (0.0
-        when they were already there). ``progress`` is passed to the feature callable."""
+    def load_features(self, progress=None) -> None:
+        """Compute the features if they are still pending (their time goes to
+        ``feature_seconds``). ``progress`` is passed to the feature callable."""
         if not callable(self._features):
-            return 0.0
+            return
         t = time.perf_counter()
         self._features = np.asarray(self._features(progress=progress), dtype=np.float64)
-        seconds = time.perf_counter() - t
-        self.feature_seconds += seconds
-        return seconds
+        self.feature_seconds = time.perf_counter() - t
 
     def will_split(self, threshold: float, max_hulls: int) -> bool:
         """Whether :meth:`cut` at these settings splits anything (the root is above the
