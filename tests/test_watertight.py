@@ -185,20 +185,24 @@ def test_solid_from_cloud_noisy():
     assert solid.volume == pytest.approx(mesh.volume, rel=0.04)
 
 
-# Measured volume IoU at resolution 96 with 20000 points: dog 0.98, dragon 0.95.
+# Measured volume IoU and volume ratio at resolution 96 with 20000 points, without closing:
+# dog 0.987 / 0.997, dragon 0.953 / 1.008; with the default closing (2 voxels), which fills the
+# dragon's narrowest folds: dog 0.972 / 1.013, dragon 0.930 / 1.053.
 @pytest.mark.parametrize(
-    "rel, threshold", [("characters/dog.stl", 0.96), ("scans/dragon_50k.ply", 0.93)]
+    "rel, closing, threshold, volume_rel",
+    [("characters/dog.stl", 0, 0.975, 0.02), ("scans/dragon_50k.ply", 0, 0.94, 0.02),
+     ("characters/dog.stl", 2, 0.96, 0.03), ("scans/dragon_50k.ply", 2, 0.92, 0.07)],
 )
-def test_solid_from_cloud_real_mesh_samples(rel, threshold):
+def test_solid_from_cloud_real_mesh_samples(rel, closing, threshold, volume_rel):
     path = DATA / "dev" / rel
     if not path.is_file():
         pytest.fail(f"{path} not available: the shared data must sit beside the checkout")
     cloud = pointcvx.load(path, normalize=True, n_points=20000)
     truth = closed_mesh_solid(cloud.mesh)
     assert truth is not None  # both are closed meshes: the exact solid
-    solid = solid_from_cloud(cloud.points, cloud.normals)
+    solid = solid_from_cloud(cloud.points, cloud.normals, closing=closing)
     assert volume_iou(solid, truth) >= threshold
-    assert solid.volume == pytest.approx(truth.volume, rel=0.05)
+    assert solid.volume == pytest.approx(truth.volume, rel=volume_rel)
 
 
 @pytest.mark.parametrize("name", ["mug_splat.ply", "mug_scan.ply"])
@@ -210,6 +214,49 @@ def test_solid_from_cloud_bundled_samples(name):
     solid = solid_for(cloud, cache=False)
     assert solid.volume > 0.01
     assert solid.to_trimesh().is_watertight
+
+
+def test_bundled_mug_splat_solid_matches_the_true_mug():
+    """The splat and the mesh samples are the same mug, in the same frame. Measured volume IoU
+    0.960 (0.918 without the closing, 0.685 while the loader got the cup's inner wall wrong),
+    and the splat counts as closed (share of flooded voxels behind the points 0.09, LEAK_SHARE
+    0.2). The closing also removes the pinholes and tunnels of the noisy sign: the surface has
+    the Euler characteristic of a solid (measured 2; -470 without the closing)."""
+    cloud = pointcvx.load(SAMPLES / "mug_splat.ply", normalize=False)
+    truth = closed_mesh_solid(trimesh.load(SAMPLES / "mug.obj", force="mesh"))
+    assert truth is not None
+    solid = solid_from_cloud(cloud.points, cloud.normals)
+    assert volume_iou(solid, truth) >= 0.94
+    assert abs(solid.to_trimesh().euler_number) <= 20
+    # The cup's cavity is air, its wall solid (measured 2.0 % and 99.8 % inside; the wall was
+    # 77 % with the wrong inner normals and no closing).
+    p = np.random.default_rng(0).uniform(-0.8, 0.8, (200_000, 3))
+    r = np.hypot(p[:, 0], p[:, 1])
+    cavity = p[(r < 0.28) & (p[:, 2] > -0.36) & (p[:, 2] < 0.5)]
+    wall = p[(r > 0.33) & (r < 0.39) & (np.abs(p[:, 2]) < 0.45)]
+    assert solid.contains(cavity).mean() <= 0.05
+    assert solid.contains(wall).mean() >= 0.95
+
+
+def test_open_capture_of_a_real_splat_is_filled_behind_its_points():
+    """The dev donut splat was never filmed from below: the flood fill runs into its tube
+    through the missing underside, so the cloud must count as open and the tube be filled
+    from the tangent planes. Measured: 77 % of its core circle inside (33 % as a closed cloud);
+    the hole stays empty."""
+    path = DATA / "dev" / "splats" / "donut.ply"
+    if not path.is_file():
+        pytest.fail(f"{path} not available: the shared data must sit beside the checkout")
+    cloud = pointcvx.load(path, n_points=20000)
+    centre = cloud.points.mean(axis=0)
+    _, _, vt = np.linalg.svd(cloud.points - centre, full_matrices=False)
+    t = np.linspace(0.0, 2.0 * np.pi, 200, endpoint=False)
+    core = np.concatenate([
+        np.stack([r * np.cos(t), r * np.sin(t), np.full_like(t, z)], axis=1) @ vt + centre
+        for r in (0.55, 0.62, 0.7) for z in (-0.25, -0.15, -0.05)
+    ])
+    solid = solid_from_cloud(cloud.points, cloud.normals)
+    assert solid.contains(core).mean() >= 0.6
+    assert not solid.contains(centre[None])[0]
 
 
 def test_solid_from_cloud_partial_scan():

@@ -10,8 +10,10 @@ Each shape runs in its own worker process (``--jobs`` at a time). For each shape
 coverage) on the shape normalised to [-1, 1]^3. Every format pointcvx reads is taken: meshes
 and CAD parts are scored against their surface; splats and point clouds, which have no closed
 surface, with ``pointcvx.metrics.evaluate_points`` (reconstruction and coverage against the
-loaded points; concavity is then the decomposer's own estimate, ``internal_max``). Writes one
-CSV row per shape and prints a markdown summary (means and medians).
+loaded points; concavity is then the decomposer's own estimate, ``internal_max``), unless
+``--truth DIR`` holds the true mesh of each input (same stem; ``tools/synthetic_splats.py``):
+then every input is scored against its true mesh. Writes one CSV row per shape and prints a
+markdown summary (means and medians).
 """
 
 from __future__ import annotations
@@ -34,7 +36,7 @@ def shape_names(files: list[str]) -> dict[str, str]:
     return {f: (Path(f).name if stems.count(s) > 1 else s) for f, s in zip(files, stems, strict=True)}
 
 
-def run_one(path: str, opts: dict, name: str | None = None) -> dict:
+def run_one(path: str, opts: dict, name: str | None = None, truth: str | None = None) -> dict:
     import torch
 
     torch.set_num_threads(1)
@@ -51,7 +53,13 @@ def run_one(path: str, opts: dict, name: str | None = None) -> dict:
         hulls = [h.vertices for h in result.hulls]
         cloud = pointcvx.load(path, normalize=False, seed=opts.get("seed", 0))
         row["modality"] = cloud.modality
-        if cloud.mesh is not None:
+        if truth is not None:  # a synthetic input made from a known solid, in the same frame
+            from pointcvx.io.mesh import read_mesh
+
+            ev = evaluate(read_mesh(truth, pointcvx.detect(truth).format), hulls)
+            row.update(concavity=round(ev["concavity"], 5), iou=round(ev["iou"], 4),
+                       eval_seconds=round(ev["seconds"], 2))
+        elif cloud.mesh is not None:
             fmt = pointcvx.detect(path).format
             mesh = pointcvx.io.mesh.read_mesh(path, fmt) if cloud.modality == "mesh" else cloud.mesh
             ev = evaluate(mesh, hulls)
@@ -65,6 +73,14 @@ def run_one(path: str, opts: dict, name: str | None = None) -> dict:
     except Exception as exc:  # noqa: BLE001 - a benchmark records failures and goes on
         row["error"] = f"{type(exc).__name__}: {exc}"
     return row
+
+
+def _truth_file(folder: str, path: str) -> str:
+    """The mesh in ``folder`` with the stem of ``path``."""
+    found = sorted(Path(folder).glob(Path(path).stem + ".*"))
+    if not found:
+        raise SystemExit(f"no true mesh for {path} in {folder}")
+    return str(found[0])
 
 
 def summarize(rows: list[dict]) -> str:
@@ -94,6 +110,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--limit", type=int, default=None)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--truth", default=None,
+                    help="folder of the true meshes (same stem, any mesh format): score against them")
     args = ap.parse_args(argv)
     files = sorted(str(p) for p in Path(args.folder).iterdir()
                    if p.is_file() and p.suffix.lower() not in SKIP_SUFFIXES and not p.name.startswith("."))
@@ -105,7 +123,8 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
         names = shape_names(files)
-        futures = {pool.submit(run_one, f, opts, names[f]): f for f in files}
+        truths = {f: _truth_file(args.truth, f) for f in files} if args.truth else dict.fromkeys(files)
+        futures = {pool.submit(run_one, f, opts, names[f], truths[f]): f for f in files}
         for fut in as_completed(futures):
             row = fut.result()
             rows.append(row)

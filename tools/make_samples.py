@@ -77,11 +77,17 @@ def quaternion_from_normal(normals: np.ndarray, rng: np.random.Generator) -> np.
     return q
 
 
-def make_splat(mesh, path: Path, rng: np.random.Generator, n: int = 14000) -> None:
+def make_splat(mesh, path: Path, rng: np.random.Generator, n: int = 14000,
+               depth_noise: float = 0.0) -> None:
+    """Write a synthetic INRIA splat of ``mesh``: ``n`` flat Gaussians on its surface (centres
+    moved along their normal by N(0, ``depth_noise``), as the centres of a trained splat
+    scatter about the surface), faint Gaussians everywhere and a small floater cluster."""
     from pointcvx.io.splat import write_inria_ply
 
     points, face = mesh.sample(n, return_index=True, seed=int(rng.integers(1 << 31)))
     normals = mesh.face_normals[face]
+    if depth_noise > 0:
+        points = points + normals * rng.normal(0.0, depth_noise, (n, 1))
     size = rng.uniform(0.008, 0.02, n)
     scales = np.stack([size, size * rng.uniform(0.6, 1.0, n), size * 0.08], axis=1)
     rotations = quaternion_from_normal(normals, rng)

@@ -887,16 +887,25 @@ def view_directions(m: int) -> np.ndarray:
 
 
 def visibility_votes(points: np.ndarray, normals: np.ndarray, views: int = VISIBILITY_VIEWS,
-                     pixel: float = 2.0, spacing: float | None = None) -> np.ndarray:
+                     pixel: float = 2.0, spacing: float | None = None,
+                     depth_tolerance: float = 3.0, layer_gap: float = 2.0) -> np.ndarray:
     """(n,) float: how strongly each normal faces the directions its point is seen from.
 
     The points are z-buffered orthographically from ``views`` directions ``v`` around the cloud,
-    with square pixels ``pixel`` x the median distance to the 4th neighbour (so the splat looks
-    closed); a point within two pixels of the front-most depth of its pixel is seen from ``v`` and
-    votes ``n . v``. Outward normals face the outside, where an onlooker stands, so a positive sum
-    means 'outward'; thin parts (a guitar neck) get their two sides right, which sign propagation
-    along a neighbour graph cannot. Zero for points never seen. ``spacing`` overrides the median
-    4th-neighbour distance.
+    with square pixels ``pixel`` x the median distance to the 4th neighbour (``spacing``), so the
+    splat looks closed. In each pixel, going back from the front-most point, the points of the
+    first layer are seen from ``v``: those before the first depth gap wider than ``layer_gap``
+    spacings, at most ``depth_tolerance`` pixels behind the front. Each votes ``n . v``.
+    Outward normals face the outside, where an onlooker stands, so a positive sum means
+    'outward'; thin parts (a guitar neck) get their two sides right, which sign propagation
+    along a neighbour graph cannot. Zero for points never seen.
+
+    Why layers: Gaussian centres scatter in depth, so a tolerance of a few pixels finds more of
+    a noisy front surface, but a plain tolerance also takes the far side of a thin wall. On the
+    bundled mug splat (a cup wall 3.7 spacings thick) a two-pixel tolerance without the gap
+    test got 85 % of the normals right (52 % on the cup's inner wall), one pixel 98 %; the
+    gap test keeps 98 % at three pixels, where a tolerance alone helps real splats (the dev
+    donut's normals agree with its torus 95 %, 93 % with one pixel).
     """
     n = len(points)
     votes = np.zeros(n)
@@ -917,11 +926,24 @@ def visibility_votes(points: np.ndarray, normals: np.ndarray, views: int = VISIB
         w -= w.min()
         key = u * (int(w.max()) + 1) + w
         depth = centered @ v  # larger is nearer to an onlooker far out along +v
-        front = np.full(int(key.max()) + 1, -np.inf)
-        np.maximum.at(front, key, depth)
-        seen = depth >= front[key] - 2.0 * h
+        seen = np.zeros(n, dtype=bool)
+        seen[_first_layer(key, depth, layer_gap * spacing, depth_tolerance * h)] = True
         votes[seen] += normals[seen] @ v
     return votes
+
+
+def _first_layer(key: np.ndarray, depth: np.ndarray, gap: float, tolerance: float) -> np.ndarray:
+    """Indices of the points in the front layer of their pixel: (n,) int ``key`` pixel ids,
+    (n,) float ``depth`` (larger is nearer). Going back from the front-most point of a pixel, a
+    layer ends at the first step deeper than ``gap`` or ``tolerance`` behind the front."""
+    order = np.lexsort((-depth, key))  # by pixel, front first
+    k, d = key[order], depth[order]
+    first = np.r_[True, k[1:] != k[:-1]]
+    group = np.cumsum(first) - 1
+    step = np.r_[0.0, d[:-1] - d[1:]]
+    broken = np.cumsum((step > gap) & ~first)
+    passed = broken - broken[first][group] > 0  # a wide step lies between the front and here
+    return order[~passed & (d >= d[first][group] - tolerance)]
 
 
 def orient_by_visibility(points: np.ndarray, normals: np.ndarray, views: int = VISIBILITY_VIEWS,
