@@ -164,11 +164,49 @@ def test_first_layer_stops_at_a_gap():
     back = 0.5 + 0.05 * rng.random(20)
     key = np.r_[np.zeros(40, dtype=np.int64), 1]
     depth = np.r_[front, back, -3.0]
-    seen = np.sort(S._first_layer(key, depth, gap=0.2, tolerance=10.0))
-    assert seen.tolist() == list(range(20)) + [40]
+    perm = rng.permutation(41)  # any input order
+    where = np.argsort(perm)  # original index -> position in the shuffled input
+    seen = np.sort(S._first_layer(key[perm], depth[perm], gap=0.2, tolerance=10.0))
+    assert seen.tolist() == sorted(where[list(range(20)) + [40]].tolist())
     # Without a wide enough gap, the tolerance alone bounds the layer.
-    assert len(S._first_layer(key, depth, gap=1.0, tolerance=0.3)) == 21
-    assert len(S._first_layer(key, depth, gap=1.0, tolerance=10.0)) == 41
+    assert len(S._first_layer(key[perm], depth[perm], gap=1.0, tolerance=0.3)) == 21
+    assert len(S._first_layer(key[perm], depth[perm], gap=1.0, tolerance=10.0)) == 41
+    assert len(S._first_layer(key[:0], depth[:0], gap=1.0, tolerance=1.0)) == 0
+
+
+def _tool(name: str):
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(name, ROOT / "tools" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_synthetic_splats_come_with_their_truth(tmp_path):
+    """``tools/synthetic_splats.py`` writes a splat and the solid it was made from, in the same
+    frame, with its floater cluster off the shape; ``tools/eval_dataset.py --truth`` finds the
+    solid by stem."""
+    import open3d as o3d
+    import trimesh
+
+    from pointcvx.solid import raycasting_scene
+
+    assert _tool("synthetic_splats").main([str(tmp_path), "--shapes", "1"]) == 0
+    truth = trimesh.load(tmp_path / "truth" / "solid_00.obj", force="mesh")
+    splat = tmp_path / "splats" / "solid_00.ply"
+    cloud = pointcvx.load(splat, normalize=False)
+    assert cloud.modality == "splat" and cloud.info["dropped_floaters"] == 90
+    # Every loaded point lies on the true surface, within the depth noise (0.004): the frames
+    # agree and nothing of the floater or the faint Gaussians is left.
+    scene = raycasting_scene(np.asarray(truth.vertices), np.asarray(truth.faces))
+    dist = scene.compute_distance(o3d.core.Tensor(cloud.points.astype(np.float32))).numpy()
+    assert dist.max() < 0.03, dist.max()
+    (tmp_path / "truth" / "solid_00.mtl").write_text("")
+    eval_dataset, folder = _tool("eval_dataset"), str(tmp_path / "truth")
+    assert eval_dataset.truth_file(folder, str(splat)) == str(tmp_path / "truth" / "solid_00.obj")
+    with pytest.raises(SystemExit):
+        eval_dataset.truth_file(folder, str(tmp_path / "splats" / "other.ply"))
 
 
 def test_bundled_mug_splat_normals_match_the_true_mug():
@@ -177,11 +215,7 @@ def test_bundled_mug_splat_normals_match_the_true_mug():
     two visibility pixels behind the outer one) is where they used to go wrong: seen through the
     outer wall from the side, its points voted their correct normals inward. Measured 0.981
     (0.847 when every point up to two pixels behind the front counted as seen)."""
-    import importlib.util
-
-    spec = importlib.util.spec_from_file_location("make_samples", ROOT / "tools" / "make_samples.py")
-    samples = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(samples)
+    samples = _tool("make_samples")
     cloud = pointcvx.load(SAMPLES / "mug_splat.ply", normalize=False)
     p, eps = cloud.points, 1e-4
     grad = np.stack([samples.mug_sdf(p + eps * e) - samples.mug_sdf(p - eps * e) for e in np.eye(3)], axis=1)

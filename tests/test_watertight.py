@@ -241,21 +241,26 @@ def test_bundled_mug_splat_solid_matches_the_true_mug():
 def test_open_capture_of_a_real_splat_is_filled_behind_its_points():
     """The dev donut splat was never filmed from below: the flood fill runs into its tube
     through the missing underside, so the cloud must count as open and the tube be filled
-    from the tangent planes. Measured: 77 % of its core circle inside (33 % as a closed cloud);
-    the hole stays empty."""
+    from the tangent planes. Probes: circles around the donut's axis at the tube's mid-height
+    (the middle of the ring's height range, whichever way the axis points). Measured: 60 % of
+    them inside (2 % as a closed cloud); the hole stays empty."""
     path = DATA / "dev" / "splats" / "donut.ply"
     if not path.is_file():
         pytest.fail(f"{path} not available: the shared data must sit beside the checkout")
     cloud = pointcvx.load(path, n_points=20000)
     centre = cloud.points.mean(axis=0)
     _, _, vt = np.linalg.svd(cloud.points - centre, full_matrices=False)
+    q = (cloud.points - centre) @ vt.T
+    r = np.hypot(q[:, 0], q[:, 1])
+    ring = (r > 0.5) & (r < 0.75)
+    mid = 0.5 * (np.percentile(q[ring, 2], 5) + np.percentile(q[ring, 2], 95))
     t = np.linspace(0.0, 2.0 * np.pi, 200, endpoint=False)
     core = np.concatenate([
-        np.stack([r * np.cos(t), r * np.sin(t), np.full_like(t, z)], axis=1) @ vt + centre
-        for r in (0.55, 0.62, 0.7) for z in (-0.25, -0.15, -0.05)
+        np.stack([rr * np.cos(t), rr * np.sin(t), np.full_like(t, mid + dz)], axis=1) @ vt + centre
+        for rr in (0.55, 0.62, 0.7) for dz in (-0.1, 0.0, 0.1)
     ])
     solid = solid_from_cloud(cloud.points, cloud.normals)
-    assert solid.contains(core).mean() >= 0.6
+    assert solid.contains(core).mean() >= 0.5
     assert not solid.contains(centre[None])[0]
 
 

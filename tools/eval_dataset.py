@@ -75,11 +75,15 @@ def run_one(path: str, opts: dict, name: str | None = None, truth: str | None = 
     return row
 
 
-def _truth_file(folder: str, path: str) -> str:
-    """The mesh in ``folder`` with the stem of ``path``."""
-    found = sorted(Path(folder).glob(Path(path).stem + ".*"))
-    if not found:
-        raise SystemExit(f"no true mesh for {path} in {folder}")
+def truth_file(folder: str, path: str) -> str:
+    """The one file in ``folder`` with the stem of ``path`` (any mesh format; SystemExit when
+    there is none or more than one)."""
+    stem = Path(path).stem
+    found = sorted(p for p in Path(folder).iterdir()
+                   if p.is_file() and p.stem == stem and p.suffix.lower() not in SKIP_SUFFIXES)
+    if len(found) != 1:
+        what = "no" if not found else f"{len(found)} candidate"
+        raise SystemExit(f"{what} true mesh for {path} in {folder}: {[p.name for p in found]}")
     return str(found[0])
 
 
@@ -120,10 +124,10 @@ def main(argv: list[str] | None = None) -> int:
     opts = {"threshold": args.threshold, "max_hulls": args.max_hulls, "split": args.split,
             "blend": args.blend,
             "features": args.features, "model": args.model, "views": args.views, "seed": args.seed}
+    truths = {f: truth_file(args.truth, f) for f in files} if args.truth else dict.fromkeys(files)
     rows = []
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
         names = shape_names(files)
-        truths = {f: _truth_file(args.truth, f) for f in files} if args.truth else dict.fromkeys(files)
         futures = {pool.submit(run_one, f, opts, names[f], truths[f]): f for f in files}
         for fut in as_completed(futures):
             row = fut.result()

@@ -78,10 +78,11 @@ def quaternion_from_normal(normals: np.ndarray, rng: np.random.Generator) -> np.
 
 
 def make_splat(mesh, path: Path, rng: np.random.Generator, n: int = 14000,
-               depth_noise: float = 0.0) -> None:
+               depth_noise: float = 0.0, floater_at=(0.75, 0.75, 0.75)) -> None:
     """Write a synthetic INRIA splat of ``mesh``: ``n`` flat Gaussians on its surface (centres
     moved along their normal by N(0, ``depth_noise``), as the centres of a trained splat
-    scatter about the surface), faint Gaussians everywhere and a small floater cluster."""
+    scatter about the surface), faint Gaussians everywhere and a small floater cluster at
+    ``floater_at`` (which must lie off the shape)."""
     from pointcvx.io.splat import write_inria_ply
 
     points, face = mesh.sample(n, return_index=True, seed=int(rng.integers(1 << 31)))
@@ -96,7 +97,7 @@ def make_splat(mesh, path: Path, rng: np.random.Generator, n: int = 14000,
     # Noise to filter: faint Gaussians everywhere, and a small dense floater far from the mug.
     n_faint, n_float = 600, 90
     faint = rng.uniform(-0.7, 0.7, (n_faint, 3))
-    floater = np.array([0.75, 0.75, 0.75]) + rng.normal(0, 0.01, (n_float, 3))
+    floater = np.asarray(floater_at, dtype=np.float64) + rng.normal(0, 0.01, (n_float, 3))
     extra = np.concatenate([faint, floater])
     centers = np.concatenate([points, extra])
     scales = np.concatenate([scales, np.full((len(extra), 3), 0.01)])

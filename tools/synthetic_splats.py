@@ -11,8 +11,8 @@ splat against the true solid with the paper's protocol (concavity of M ∩ hull 
 reconstruction, volume IoU), in the same frame. The solids are :func:`random_solid` shapes
 (unions and differences of primitives, longest side 1.8) drawn from ``--seed``; the splats are
 :func:`make_samples.make_splat` (the bundled sample's recipe: flat Gaussians on the surface,
-faint ones everywhere and a floater cluster) with the centres scattered along their normals by
-``--depth-noise``. Same arguments, same files.
+faint ones everywhere and a floater cluster beyond a corner of the bounds) with the centres
+scattered along their normals by ``--depth-noise``. Same arguments, same files.
 """
 
 from __future__ import annotations
@@ -45,8 +45,9 @@ def main(argv: list[str] | None = None) -> int:
         mesh = random_solid(rng)
         name = f"solid_{i:02d}"
         mesh.export(out / "truth" / f"{name}.obj")
+        # The floater cluster sits beyond a corner of the solid's bounds, off the shape.
         make_splat(mesh, out / "splats" / f"{name}.ply", np.random.default_rng([args.seed, i]),
-                   n=args.gaussians, depth_noise=args.depth_noise)
+                   n=args.gaussians, depth_noise=args.depth_noise, floater_at=mesh.bounds[1] + 0.15)
         print(f"{name}: {len(mesh.faces)} faces, volume {mesh.volume:.3f}", flush=True)
     return 0
 

@@ -927,7 +927,9 @@ def visibility_votes(points: np.ndarray, normals: np.ndarray, views: int = VISIB
         key = u * (int(w.max()) + 1) + w
         depth = centered @ v  # larger is nearer to an onlooker far out along +v
         seen = np.zeros(n, dtype=bool)
-        seen[_first_layer(key, depth, layer_gap * spacing, depth_tolerance * h)] = True
+        # (A spacing of 0, from duplicated centres, would make every step a gap.)
+        gap = layer_gap * max(spacing, h / pixel)
+        seen[_first_layer(key, depth, gap, depth_tolerance * h)] = True
         votes[seen] += normals[seen] @ v
     return votes
 
@@ -936,6 +938,8 @@ def _first_layer(key: np.ndarray, depth: np.ndarray, gap: float, tolerance: floa
     """Indices of the points in the front layer of their pixel: (n,) int ``key`` pixel ids,
     (n,) float ``depth`` (larger is nearer). Going back from the front-most point of a pixel, a
     layer ends at the first step deeper than ``gap`` or ``tolerance`` behind the front."""
+    if len(key) == 0:
+        return np.zeros(0, dtype=np.int64)
     order = np.lexsort((-depth, key))  # by pixel, front first
     k, d = key[order], depth[order]
     first = np.r_[True, k[1:] != k[:-1]]
