@@ -41,6 +41,7 @@ def run_one(path: str, opts: dict, name: str | None = None, truth: str | None = 
 
     torch.set_num_threads(1)
     import pointcvx
+    from pointcvx.io.mesh import read_mesh
     from pointcvx.metrics import evaluate, evaluate_points
 
     row = {"shape": name or Path(path).stem}
@@ -54,14 +55,12 @@ def run_one(path: str, opts: dict, name: str | None = None, truth: str | None = 
         cloud = pointcvx.load(path, normalize=False, seed=opts.get("seed", 0))
         row["modality"] = cloud.modality
         if truth is not None:  # a synthetic input made from a known solid, in the same frame
-            from pointcvx.io.mesh import read_mesh
-
-            ev = evaluate(read_mesh(truth, pointcvx.detect(truth).format), hulls)
-            row.update(concavity=round(ev["concavity"], 5), iou=round(ev["iou"], 4),
-                       eval_seconds=round(ev["seconds"], 2))
-        elif cloud.mesh is not None:
-            fmt = pointcvx.detect(path).format
-            mesh = pointcvx.io.mesh.read_mesh(path, fmt) if cloud.modality == "mesh" else cloud.mesh
+            mesh = read_mesh(truth, pointcvx.detect(truth).format)
+        elif cloud.modality == "mesh":
+            mesh = read_mesh(path, pointcvx.detect(path).format)
+        else:
+            mesh = cloud.mesh  # CAD: the tessellation; splats and scans: None
+        if mesh is not None:
             ev = evaluate(mesh, hulls)
             row.update(concavity=round(ev["concavity"], 5), iou=round(ev["iou"], 4),
                        eval_seconds=round(ev["seconds"], 2))

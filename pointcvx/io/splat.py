@@ -916,6 +916,8 @@ def visibility_votes(points: np.ndarray, normals: np.ndarray, views: int = VISIB
     centered = points - points.mean(axis=0)
     extent = float(np.linalg.norm(centered, axis=1).max())
     h = max(pixel * spacing, extent / 2048.0, 1e-12)
+    # (A spacing of 0, from duplicated centres, would make every step a gap.)
+    gap = layer_gap * max(spacing, h / pixel)
     for v in view_directions(views):
         a = np.cross(v, (1.0, 0.0, 0.0) if abs(v[0]) < 0.9 else (0.0, 1.0, 0.0))
         a /= np.linalg.norm(a)
@@ -927,8 +929,6 @@ def visibility_votes(points: np.ndarray, normals: np.ndarray, views: int = VISIB
         key = u * (int(w.max()) + 1) + w
         depth = centered @ v  # larger is nearer to an onlooker far out along +v
         seen = np.zeros(n, dtype=bool)
-        # (A spacing of 0, from duplicated centres, would make every step a gap.)
-        gap = layer_gap * max(spacing, h / pixel)
         seen[_first_layer(key, depth, gap, depth_tolerance * h)] = True
         votes[seen] += normals[seen] @ v
     return votes
