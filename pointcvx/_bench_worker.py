@@ -115,7 +115,7 @@ def _warm_pointcvx(params: dict) -> None:
 
     from pointcvx.pipeline import decompose, preload
 
-    preload(params.get("features", "optimize"), params.get("model"))
+    preload(params.get("features", "auto"), params.get("model"))
     # One small decomposition of a ring: the first call of a process also pays one-time set-up
     # inside torch, scikit-learn and Qhull (about a second), which a batch pays once.
     ring = trimesh.creation.annulus(r_min=0.5, r_max=1.0, height=0.4)

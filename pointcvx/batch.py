@@ -114,7 +114,8 @@ class BatchOptions:
     ----------
     format : str
         Output format per asset, one of :data:`pointcvx.export.FORMATS` (default ``obj``).
-    threshold, max_hulls, features, model, views, merge, split, n_points, target, max_hull_vertices
+    threshold, max_hulls, features, model, views, merge, split, n_points, target, max_hull_vertices,
+    subsurface
         :func:`pointcvx.decompose`'s settings.
     seed : int
         Batch seed; each asset runs with :func:`asset_seed` of it.
@@ -134,7 +135,7 @@ class BatchOptions:
     format: str = "obj"
     threshold: float = 0.1
     max_hulls: int = 64
-    features: str = "optimize"
+    features: str = "auto"
     model: str | None = None
     views: int = 1
     merge: bool = True
@@ -143,6 +144,7 @@ class BatchOptions:
     seed: int = 0
     target: str | None = None
     max_hull_vertices: int | None = None
+    subsurface: float | None = None
     load_options: dict = field(default_factory=dict)
     timeout: float = 600.0
     max_memory_mb: float | None = None
@@ -157,7 +159,7 @@ class BatchOptions:
         if self.format not in FORMATS:
             raise InputError(f"unknown output format {self.format!r}; expected one of {', '.join(FORMATS)}")
         if self.features not in FEATURE_METHODS:
-            raise InputError(f"unknown feature method {self.features!r}; expected optimize or model")
+            raise InputError(f"unknown feature method {self.features!r}; expected one of {FEATURE_METHODS}")
         if self.split not in SPLIT_METHODS:
             raise InputError(f"unknown split method {self.split!r}; expected one of {SPLIT_METHODS}")
         if not (self.threshold > 0 and math.isfinite(self.threshold)):
@@ -175,11 +177,13 @@ class BatchOptions:
             LoadOptions.from_kwargs(n_points=self.n_points, seed=self.seed, **self.load_options)
         except TypeError as exc:
             raise InputError(str(exc)) from None
+        if self.subsurface is not None and not (self.subsurface > 0 and math.isfinite(self.subsurface)):
+            raise InputError(f"subsurface depth must be positive, got {self.subsurface}")
         if self.target is not None or self.max_hull_vertices is not None:
             from .simplify import hull_limits
 
             hull_limits(self.target, self.max_hull_vertices)
-        if self.features == "model":
+        if self.features == "model" or (self.features == "auto" and self.model is not None):
             from .pipeline import bundled_model_path
 
             path = Path(self.model) if self.model is not None else bundled_model_path()
@@ -194,6 +198,7 @@ class BatchOptions:
                 "features": self.features, "model": self.model, "views": int(self.views),
                 "merge": bool(self.merge), "split": self.split, "n_points": int(self.n_points),
                 "seed": int(seed), "target": self.target, "max_hull_vertices": self.max_hull_vertices,
+                "subsurface": self.subsurface,
                 **self.load_options}
 
     def fingerprint(self) -> str:
@@ -207,7 +212,7 @@ class BatchOptions:
         defaults = dataclasses.asdict(LoadOptions())
         keys["load_options"] = {k: v for k, v in self.load_options.items()
                                 if k not in defaults or defaults[k] != v}
-        if self.features == "model":
+        if self.features in ("model", "auto"):  # "auto" uses the model on splats
             from .pipeline import bundled_model_path
 
             path = Path(self.model) if self.model is not None else bundled_model_path()
@@ -1349,7 +1354,8 @@ def options_from_args(args: argparse.Namespace) -> BatchOptions:
         format=args.format, threshold=args.threshold, max_hulls=args.max_hulls, features=args.features,
         model=args.model, views=args.views, merge=not args.no_merge, split=args.split,
         n_points=args.points, seed=args.seed, target=args.target,
-        max_hull_vertices=args.max_hull_vertices, load_options=load, timeout=args.timeout,
+        max_hull_vertices=args.max_hull_vertices, subsurface=args.subsurface, load_options=load,
+        timeout=args.timeout,
         max_memory_mb=args.max_memory, threads=args.threads,
     )
 

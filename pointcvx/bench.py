@@ -137,7 +137,7 @@ class BenchOptions:
     thresholds: tuple[float, ...] = (0.1,)
     match: bool = True
     timeout: float = 600.0
-    features: str = "optimize"
+    features: str = "auto"
     model: str | None = None
     max_hulls: int = 64
     n_points: int = 20000
@@ -162,12 +162,14 @@ class BenchOptions:
             raise InputError(f"thresholds must be positive, got {list(self.thresholds)}")
         if not self.timeout > 0:
             raise InputError(f"timeout must be positive, got {self.timeout}")
-        if self.features not in ("optimize", "model"):
-            raise InputError(f"unknown feature method {self.features!r}; expected optimize or model")
-        if self.features == "model" and "pointcvx" in self.methods:
+        from .pipeline import FEATURE_METHODS
+
+        if self.features not in FEATURE_METHODS:
+            raise InputError(f"unknown feature method {self.features!r}; expected one of {FEATURE_METHODS}")
+        if self.features in ("model", "auto") and "pointcvx" in self.methods:
             if self.model is not None and not Path(self.model).is_file():
                 raise InputError(f"{self.model}: no such model checkpoint")
-            if self.model is None:
+            if self.model is None and self.features == "model":
                 from .pipeline import bundled_model_path
 
                 if bundled_model_path() is None:
@@ -1069,8 +1071,9 @@ def add_parser(sub) -> argparse.ArgumentParser:
                    help="wall-clock limit of each run (default 600)")
     p.add_argument("--limit", type=int, default=None, metavar="N", help="at most N shapes per dataset")
     p.add_argument("--jobs", type=int, default=1, metavar="N", help="shapes run at once (default 1)")
-    p.add_argument("--features", choices=["optimize", "model"], default="optimize",
-                   help="pointcvx features: optimised per shape, or the feed-forward model")
+    p.add_argument("--features", choices=["auto", "optimize", "model"], default="auto",
+                   help="pointcvx features: optimised per shape, the feed-forward model, or auto "
+                        "(the default: the model on splats, optimisation on the rest)")
     p.add_argument("--model", metavar="CKPT", help="model checkpoint for --features model")
     p.add_argument("-k", "--max-hulls", type=int, default=64, help="pointcvx hull budget (default 64)")
     p.add_argument("-n", "--points", type=int, default=20000, metavar="N",

@@ -136,13 +136,17 @@ class Decomposer:
     refine : int
         How many of the best-ranked proposals get the full measure; the best of those is kept.
     seed : int
+    surface : (n,) bool, optional
+        Which points are surface samples (default: all). The others (a splat's sub-surface
+        centres, :func:`pointcvx.pipeline.subsurface_points`) belong to parts and their hulls
+        but are left out of the concavity measure, whose surface they are not.
     """
 
     def __init__(self, points, normals, features, solid, *, split: str = "auto",
                  is_mesh: bool = False, blend: float = 1.0, candidates: tuple = (0.5, 1.0, 2.0),
                  max_split_points: int = 3000, concavity_samples: int = 2000,
                  rank_points: int = 1000, rank_samples: int = 300, refine: int = 2,
-                 seed: int = 0):
+                 seed: int = 0, surface: np.ndarray | None = None):
         if split not in SPLIT_METHODS:
             raise InputError(f"unknown split method {split!r}; expected one of {SPLIT_METHODS}")
         self.points = np.asarray(points, dtype=np.float64)
@@ -163,6 +167,9 @@ class Decomposer:
         self.rank_samples = int(rank_samples)
         self.refine = int(refine)
         self.seed = int(seed)
+        self.surface = None if surface is None else np.asarray(surface, dtype=bool).reshape(-1)
+        if self.surface is not None and len(self.surface) != len(self.points):
+            raise InputError(f"surface mask has {len(self.surface)} entries for {len(self.points)} points")
         # A fixed random priority per point: a part's coarse subsample is its rank_points
         # points of lowest priority, the same points whichever proposal the part comes from.
         self._priority = np.random.default_rng(self.seed).permutation(len(self.points))
@@ -233,6 +240,11 @@ class Decomposer:
         if cut is not None:
             near &= self._priority <= cut
         near[indices] = False
+        if self.surface is not None:
+            near &= self.surface
+            own = self.surface[indices]
+            if own.sum() >= 4:  # the measure reads the part's surface samples only
+                pts = pts[own]
         near = self.points[near]
         if len(near):
             # Points at least a hair inside the hull (not those on a shared cut face).

@@ -342,3 +342,31 @@ def test_ray_batch_survives_a_killed_worker_and_resumes(tmp_path, monkeypatch):
     assert local.rows[0]["id"] == "objects/mug" == first.rows[0]["id"]
     assert ((tmp_path / "local" / local.rows[0]["output"]).read_bytes()
             == (out / first.rows[0]["output"]).read_bytes())
+
+
+def test_default_features_are_auto_and_the_model_is_part_of_their_fingerprint(tmp_path):
+    """With "auto" a splat's output depends on the model: another checkpoint is another batch;
+    with per-shape optimisation the checkpoint plays no part."""
+    opts = BatchOptions()
+    assert opts.features == "auto"
+    opts.check()
+    other = tmp_path / "other.pt"
+    other.write_bytes(b"not the bundled weights")
+    assert BatchOptions(model=str(other)).fingerprint() != opts.fingerprint()
+    assert (BatchOptions(features="optimize", model=str(other)).fingerprint()
+            == BatchOptions(features="optimize").fingerprint())
+    with pytest.raises(InputError, match="no such model checkpoint"):
+        BatchOptions(model=str(tmp_path / "missing.pt")).check()
+    with pytest.raises(InputError, match="unknown feature method"):
+        BatchOptions(features="best").check()
+
+
+def test_subsurface_option_reaches_decompose_and_is_checked(tmp_path):
+    from pointcvx.cli import build_parser
+
+    opts = batch.options_from_args(build_parser().parse_args(
+        ["batch", "in", "-o", "out", "--subsurface", "0.05"]))
+    assert opts.subsurface == 0.05 and opts.decompose_kwargs(0)["subsurface"] == 0.05
+    assert opts.fingerprint() != BatchOptions().fingerprint()
+    with pytest.raises(InputError, match="subsurface depth must be positive"):
+        BatchOptions(subsurface=0.0).check()

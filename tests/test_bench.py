@@ -192,8 +192,8 @@ def test_parser_defaults_and_options():
     assert args.func is bench.cmd_bench
     opts = bench.options_from_args(args)
     assert (args.datasets, args.outdir, args.jobs, args.limit) == (["a", "b"], "out", 1, None)
-    assert (opts.methods, opts.thresholds, opts.match, opts.timeout) == (
-        ("pointcvx", "coacd", "vhacd"), (0.1,), True, 600.0)
+    assert (opts.methods, opts.thresholds, opts.match, opts.timeout, opts.features) == (
+        ("pointcvx", "coacd", "vhacd"), (0.1,), True, 600.0, "auto")
     opts = bench.options_from_args(_args(["a", "-o", "o", "--methods", "PointCVX, vhacdx",
                                           "--thresholds", "0.05,0.2", "--no-match", "--timeout", "5",
                                           "--features", "model"]))
@@ -297,11 +297,13 @@ def test_worker_warms_imports_and_model_before_the_timed_call():
         "import sys\n"
         "from pointcvx import _bench_worker as w\n"
         "from pointcvx.pipeline import _cached_model\n"
-        "w._warm_pointcvx({'features': 'model', 'model': None})\n"
+        "w._warm_pointcvx({'features': sys.argv[1], 'model': None})\n"
         "missing = [m for m in ('open3d', 'sklearn.cluster', 'skimage.measure', 'trimesh', 'torch')\n"
         "           if m not in sys.modules]\n"
         "print(missing, _cached_model.cache_info().currsize)\n"
     )
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
-    assert out.returncode == 0, out.stderr
-    assert out.stdout.split("\n")[0] == "[] 1"
+    for features in ("model", "auto"):  # "auto" uses the model on splats: load it once, before
+        out = subprocess.run([sys.executable, "-c", code, features], capture_output=True, text=True,
+                             timeout=300)
+        assert out.returncode == 0, out.stderr
+        assert out.stdout.split("\n")[0] == "[] 1", features

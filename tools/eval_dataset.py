@@ -2,7 +2,7 @@
 
     python tools/eval_dataset.py ../shared/data/vhacd61 -o docs/results/vhacd61.csv \
         [--threshold 0.1] [--max-hulls 64] [--jobs 2] [--limit N] [--split auto] \
-        [--features optimize|model] [--model CKPT]
+        [--features optimize|model|auto] [--model CKPT] [--subsurface 0.05]
 
 Each shape runs in its own worker process (``--jobs`` at a time). For each shape: the time of
 ``pointcvx.decompose`` (features + splitting + merge + hulls) and the metrics of
@@ -113,6 +113,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--limit", type=int, default=None)
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--subsurface", type=float, default=None,
+                    help="decompose(subsurface=...): depth below which points leave the measure")
     ap.add_argument("--truth", default=None,
                     help="folder of the true meshes (same stem, any mesh format): score against them")
     args = ap.parse_args(argv)
@@ -122,7 +124,8 @@ def main(argv: list[str] | None = None) -> int:
         files = files[: args.limit]
     opts = {"threshold": args.threshold, "max_hulls": args.max_hulls, "split": args.split,
             "blend": args.blend,
-            "features": args.features, "model": args.model, "views": args.views, "seed": args.seed}
+            "features": args.features, "model": args.model, "views": args.views, "seed": args.seed,
+            "subsurface": args.subsurface}
     truths = {f: truth_file(args.truth, f) for f in files} if args.truth else dict.fromkeys(files)
     rows = []
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:

@@ -78,11 +78,14 @@ def quaternion_from_normal(normals: np.ndarray, rng: np.random.Generator) -> np.
 
 
 def make_splat(mesh, path: Path, rng: np.random.Generator, n: int = 14000,
-               depth_noise: float = 0.0, floater_at=(0.75, 0.75, 0.75)) -> None:
+               depth_noise: float = 0.0, floater_at=(0.75, 0.75, 0.75),
+               subsurface: float = 0.0) -> None:
     """Write a synthetic INRIA splat of ``mesh``: ``n`` flat Gaussians on its surface (centres
     moved along their normal by N(0, ``depth_noise``), as the centres of a trained splat
     scatter about the surface), faint Gaussians everywhere and a small floater cluster at
-    ``floater_at`` (which must lie off the shape)."""
+    ``floater_at`` (which must lie off the shape). ``subsurface`` adds that fraction of ``n``
+    opaque, randomly turned Gaussians 0.03-0.08 under the surface where the solid is that
+    thick, as trained splats keep a layer of Gaussians under their surface."""
     from pointcvx.io.splat import write_inria_ply
 
     points, face = mesh.sample(n, return_index=True, seed=int(rng.integers(1 << 31)))
@@ -94,6 +97,26 @@ def make_splat(mesh, path: Path, rng: np.random.Generator, n: int = 14000,
     rotations = quaternion_from_normal(normals, rng)
     opacity = rng.uniform(0.6, 0.99, n)
     colors = np.clip(0.5 + 0.4 * points[:, [2, 0, 1]] + rng.normal(0, 0.03, (n, 3)), 0, 1)
+    if subsurface > 0:
+        from pointcvx.solid import Solid
+
+        m = int(round(subsurface * n))
+        base, bface = mesh.sample(4 * m, return_index=True, seed=int(rng.integers(1 << 31)))
+        depth = rng.uniform(0.03, 0.08, len(base))
+        under = base - mesh.face_normals[bface] * depth[:, None]
+        solid = Solid.from_trimesh(mesh)
+        ok = np.flatnonzero(solid.contains(under) & (solid.distance(under) > 0.9 * depth))[:m]
+        under = under[ok]
+        k = len(under)
+        turn = rng.normal(size=(k, 3))
+        turn /= np.linalg.norm(turn, axis=1, keepdims=True)
+        sub_size = rng.uniform(0.01, 0.025, k)
+        points = np.concatenate([points, under])
+        scales = np.concatenate([scales, np.stack([sub_size, sub_size * rng.uniform(0.5, 1.0, k),
+                                                   sub_size * rng.uniform(0.2, 0.6, k)], axis=1)])
+        rotations = np.concatenate([rotations, quaternion_from_normal(turn, rng)])
+        opacity = np.concatenate([opacity, rng.uniform(0.6, 0.99, k)])
+        colors = np.concatenate([colors, np.full((k, 3), 0.4)])
     # Noise to filter: faint Gaussians everywhere, and a small dense floater far from the mug.
     n_faint, n_float = 600, 90
     faint = rng.uniform(-0.7, 0.7, (n_faint, 3))

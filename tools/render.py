@@ -38,7 +38,7 @@ UP = {"y": ([0, 2, 1], [1, 1, 1]), "-y": ([0, 2, 1], [1, 1, -1]), "z": ([0, 1, 2
 
 
 def render(path: str, out: Path, *, features: str, model: str | None, threshold: float, seed: int,
-           elev: float, azim: float, up: str = "y") -> dict:
+           elev: float, azim: float, up: str = "y", subsurface: float | None = None) -> dict:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -51,7 +51,8 @@ def render(path: str, out: Path, *, features: str, model: str | None, threshold:
 
     if features == "model":  # load the network first: time a loaded model, as in a loop over shapes
         compute_features(as_cloud(path, seed=seed), None, method="model", model=model, seed=seed)
-    result = pointcvx.decompose(path, features=features, model=model, threshold=threshold, seed=seed)
+    result = pointcvx.decompose(path, features=features, model=model, threshold=threshold, seed=seed,
+                                subsurface=subsurface)
     t_feat = result.timings["features"]
     cloud, feats = result.cloud, result.features
 
@@ -97,11 +98,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--elev", type=float, default=20.0)
     ap.add_argument("--azim", type=float, default=-60.0)
     ap.add_argument("--up", choices=sorted(UP), default="y", help="the input's up axis (splats: often -y)")
+    ap.add_argument("--subsurface", type=float, default=None,
+                    help="decompose(subsurface=...); the file name gets _subsurface")
     args = ap.parse_args(argv)
     for path in args.inputs:
-        out = Path(args.outdir) / f"{Path(path).name.split('.')[0]}_{args.features}.png"
+        tag = "_subsurface" if args.subsurface is not None else ""
+        out = Path(args.outdir) / f"{Path(path).name.split('.')[0]}{tag}_{args.features}.png"
         info = render(path, out, features=args.features, model=args.model, threshold=args.threshold,
-                      seed=args.seed, elev=args.elev, azim=args.azim, up=args.up)
+                      seed=args.seed, elev=args.elev, azim=args.azim, up=args.up,
+                      subsurface=args.subsurface)
         print(info, flush=True)
     return 0
 

@@ -1,7 +1,7 @@
 """Synthetic Gaussian splats of procedural solids, with the solids as ground truth.
 
     python tools/synthetic_splats.py OUTDIR [--shapes 30] [--seed 777] [--gaussians 14000] \
-        [--depth-noise 0.004]
+        [--depth-noise 0.004] [--subsurface 0.15]
     python tools/eval_dataset.py OUTDIR/splats --truth OUTDIR/truth -o CSV [--features model]
 
 Real splats (``../shared/data/dev/splats``) have no ground truth: their concavity can only be
@@ -12,7 +12,9 @@ reconstruction, volume IoU), in the same frame. The solids are :func:`random_sol
 (unions and differences of primitives, longest side 1.8) drawn from ``--seed``; the splats are
 :func:`make_samples.make_splat` (the bundled sample's recipe: flat Gaussians on the surface,
 faint ones everywhere and a floater cluster beyond a corner of the bounds) with the centres
-scattered along their normals by ``--depth-noise``. Same arguments, same files.
+scattered along their normals by ``--depth-noise`` and, with ``--subsurface F``, F x
+``--gaussians`` more Gaussians 0.03-0.08 under the surface (trained splats keep such a layer).
+Same arguments, same files.
 """
 
 from __future__ import annotations
@@ -36,6 +38,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=777)
     ap.add_argument("--gaussians", type=int, default=14000)
     ap.add_argument("--depth-noise", type=float, default=0.004)
+    ap.add_argument("--subsurface", type=float, default=0.0)
     args = ap.parse_args(argv)
     out = Path(args.outdir)
     (out / "splats").mkdir(parents=True, exist_ok=True)
@@ -47,7 +50,8 @@ def main(argv: list[str] | None = None) -> int:
         mesh.export(out / "truth" / f"{name}.obj")
         # The floater cluster sits beyond a corner of the solid's bounds, off the shape.
         make_splat(mesh, out / "splats" / f"{name}.ply", np.random.default_rng([args.seed, i]),
-                   n=args.gaussians, depth_noise=args.depth_noise, floater_at=mesh.bounds[1] + 0.15)
+                   n=args.gaussians, depth_noise=args.depth_noise, floater_at=mesh.bounds[1] + 0.15,
+                   subsurface=args.subsurface)
         print(f"{name}: {len(mesh.faces)} faces, volume {mesh.volume:.3f}", flush=True)
     return 0
 
