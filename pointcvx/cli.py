@@ -46,8 +46,8 @@ def add_decomposition_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("-k", "--max-hulls", type=int, default=64, help="hull budget (default 64)")
     p.add_argument("--features", choices=["auto", "optimize", "model"], default="auto",
                    help="optimise a feature field per shape, or use the bundled model (loaded once "
-                        "per process); auto (default): the model on splats, where it measured at "
-                        "least as good in about half the time, optimisation on meshes, CAD and scans")
+                        "per process); auto (default): the model on splats, where it measured on par in "
+                        "about half the time, optimisation on meshes, CAD and scans")
     p.add_argument("--model", metavar="CKPT",
                    help="feed-forward model checkpoint for --features model (from `pointcvx train`)")
     p.add_argument("--views", type=int, default=1, metavar="V",

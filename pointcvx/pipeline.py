@@ -27,8 +27,9 @@ from .result import ConvexHull, Decomposition
 log = logging.getLogger(__name__)
 
 FEATURE_METHODS = ("auto", "optimize", "model")
-#: Modalities whose default feature source is the bundled model: where it measured at least as
-#: good as per-shape optimisation (splats, docs/model.md). Meshes, CAD parts and scans keep
+#: Modalities whose default feature source is the bundled model: where it measured on par with
+#: per-shape optimisation (fewer hulls, each winning one of concavity and reconstruction by a
+#: few per cent) in about half the time (splats, docs/model.md). Meshes, CAD parts and scans keep
 #: per-shape optimisation until a model beats it there too.
 MODEL_MODALITIES = ("splat",)
 
@@ -233,8 +234,8 @@ def decompose(
         Never make more hulls than this.
     features : {"auto", "optimize", "model"}
         Where convex-aware features come from: optimised for this shape, or a feed-forward model.
-        "auto" (the default) uses the model on splats, where it measured at least as good at about
-        half the time, and optimisation on every other input (:func:`resolve_features`); the
+        "auto" (the default) uses the model on splats, where it measured on par in about half
+        the time, and optimisation on every other input (:func:`resolve_features`); the
         choice is recorded in ``result.params["features"]``.
     model : path, optional
         Checkpoint of the feed-forward model (``pointcvx train``); default: the bundled one.
