@@ -569,17 +569,24 @@ def _box_field(grid: _Grid, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     return np.broadcast_to(out, grid.shape)
 
 
-def _coarse_hoppe(tree, points, normals, grid: _Grid, flat: np.ndarray, neighbors, sigma,
-                  stride: int = 2) -> np.ndarray:
-    """(m,) float: :func:`_hoppe` at the grid vertices ``flat``, evaluated on every ``stride``-th
-    vertex and copied to the others (far from the points, only its smooth sign matters)."""
+def _coarse_vertices(grid: _Grid, flat: np.ndarray, stride: int) -> tuple[np.ndarray, np.ndarray]:
+    """Every ``stride``-th grid vertex near the vertices ``flat``: ((c, 3) float positions,
+    (m,) int index of the coarse vertex standing for each of ``flat``)."""
     ijk = np.stack(np.unravel_index(flat, grid.shape), axis=1)
     coarse = np.rint(ijk / stride).astype(np.int64)
     cshape = tuple(int(v) for v in coarse.max(axis=0) + 1)
     cflat = np.ravel_multi_index(coarse.T, cshape)
     used, inverse = np.unique(cflat, return_inverse=True)
     at = grid.origin + np.stack(np.unravel_index(used, cshape), axis=1) * (stride * grid.h)
-    return _hoppe(tree, points, normals, at, neighbors, sigma)[inverse.reshape(-1)]
+    return at, inverse.reshape(-1)
+
+
+def _coarse_hoppe(tree, points, normals, grid: _Grid, flat: np.ndarray, neighbors, sigma,
+                  stride: int = 2) -> np.ndarray:
+    """(m,) float: :func:`_hoppe` at the grid vertices ``flat``, evaluated on every ``stride``-th
+    vertex and copied to the others (far from the points, only its smooth sign matters)."""
+    at, inverse = _coarse_vertices(grid, flat, stride)
+    return _hoppe(tree, points, normals, at, neighbors, sigma)[inverse]
 
 
 def dipole_cells(points: np.ndarray, normals: np.ndarray, cell: float, k: int = 8,
@@ -660,14 +667,9 @@ def winding_number(centres: np.ndarray, moments: np.ndarray, query: np.ndarray,
 def _coarse_winding(points, normals, grid: _Grid, flat: np.ndarray, stride: int = 3) -> np.ndarray:
     """(m,) float: :func:`winding_number` of the cloud at the grid vertices ``flat``, from cells
     of ``stride`` voxels, evaluated on every ``stride``-th vertex and copied to the others."""
-    ijk = np.stack(np.unravel_index(flat, grid.shape), axis=1)
-    coarse = np.rint(ijk / stride).astype(np.int64)
-    cshape = tuple(int(v) for v in coarse.max(axis=0) + 1)
-    cflat = np.ravel_multi_index(coarse.T, cshape)
-    used, inverse = np.unique(cflat, return_inverse=True)
-    at = grid.origin + np.stack(np.unravel_index(used, cshape), axis=1) * (stride * grid.h)
+    at, inverse = _coarse_vertices(grid, flat, stride)
     centres, moments = dipole_cells(points, normals, stride * grid.h)
-    return winding_number(centres, moments, at)[inverse.reshape(-1)]
+    return winding_number(centres, moments, at)[inverse]
 
 
 def surface_from_cloud(
