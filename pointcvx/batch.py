@@ -153,7 +153,7 @@ class BatchOptions:
     def check(self) -> None:
         """Raise :class:`InputError` on any unusable setting (before any worker starts)."""
         from .export import FORMATS
-        from .pipeline import FEATURE_METHODS
+        from .pipeline import FEATURE_METHODS, check_subsurface
         from .recursive import SPLIT_METHODS
 
         if self.format not in FORMATS:
@@ -177,8 +177,7 @@ class BatchOptions:
             LoadOptions.from_kwargs(n_points=self.n_points, seed=self.seed, **self.load_options)
         except TypeError as exc:
             raise InputError(str(exc)) from None
-        if self.subsurface is not None and not (self.subsurface > 0 and math.isfinite(self.subsurface)):
-            raise InputError(f"subsurface depth must be positive, got {self.subsurface}")
+        check_subsurface(self.subsurface)
         if self.target is not None or self.max_hull_vertices is not None:
             from .simplify import hull_limits
 

@@ -75,19 +75,26 @@ BUNDLED_MODEL = Path(__file__).parent / "data" / "model_small.pt"
 SUBSURFACE_DEPTH = 0.05
 
 
+def check_subsurface(depth: float | None) -> None:
+    """Raise :class:`InputError` unless ``depth`` (``decompose(subsurface=...)``) is None or a
+    positive finite number."""
+    if depth is not None and not (depth > 0 and math.isfinite(depth)):
+        raise InputError(f"subsurface depth must be positive, got {depth}")
+
+
 def subsurface_points(points: np.ndarray, solid, depth: float = SUBSURFACE_DEPTH) -> np.ndarray:
     """(n,) bool: which of (n, 3) ``points`` lie deeper than ``depth`` inside ``solid``.
-
-    The walls of a fold that the solid closed (cloud solids close folds up to about four voxels
-    wide, ``watertight.CLOUD_CLOSING``) read as deep too: on 30 synthetic splats without a
-    sub-surface layer, leaving them out of the measure put one more shape over the threshold
-    (docs/decomposition.md). Hence :func:`decompose` does this only when asked.
 
     A trained 3D Gaussian splat keeps Gaussians under its surface (the dev donut: about 1,800
     of its 20,000 working centres 0.05-0.1 below it). A part's hull contains them, but the
     concavity measure would read their distance to the hull's surface as concavity, so a part
     would have to split until a hull face passes near each of them (the donut: 44 hulls with
     the bundled model; 17 with them left out of the measure).
+
+    The walls of a fold that the solid closed (cloud solids close folds up to about four voxels
+    wide, ``watertight.CLOUD_CLOSING``) read as deep too: on 30 synthetic splats without a
+    sub-surface layer, leaving them out of the measure put one more shape over the threshold
+    (docs/decomposition.md). Hence :func:`decompose` does this only when asked.
 
     ``depth`` is a fraction of half the longest side of the points' bounds.
     """
@@ -274,7 +281,6 @@ def decompose(
     Returns
     -------
     Decomposition
-
     """
     if not threshold > 0:
         raise InputError(f"threshold must be positive, got {threshold}")
@@ -282,8 +288,7 @@ def decompose(
         raise InputError(f"max_hulls must be at least 1, got {max_hulls}")
     if int(views) != views or views < 1:
         raise InputError(f"views must be a positive integer, got {views}")
-    if subsurface is not None and not (subsurface > 0 and math.isfinite(subsurface)):
-        raise InputError(f"subsurface depth must be positive, got {subsurface}")
+    check_subsurface(subsurface)
     from .recursive import SPLIT_METHODS, Decomposer
     from .watertight import solid_for
 
