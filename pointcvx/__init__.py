@@ -11,14 +11,26 @@ from __future__ import annotations
 import logging
 
 from .cloud import Normalization, OrientedCloud
-from .errors import InputError, MissingExtraError, OutputError, PointcvxError, UnknownFormatError
+from .errors import (
+    InputError,
+    MissingExtraError,
+    MissingLibraryError,
+    OutputError,
+    PointcvxError,
+    UnknownFormatError,
+)
 from .io import LoadOptions, detect, load
 from .pipeline import decompose
 from .result import ConvexHull, Decomposition
+from .syslibs import preload_libusb
 
 __version__ = "0.1.0"
 
 logging.getLogger(__name__).addHandler(logging.NullHandler())
+
+# open3d is imported lazily everywhere; make its libusb loadable first (see pointcvx.syslibs),
+# for pointcvx's own imports and for a user's ``import open3d`` after ``import pointcvx``.
+preload_libusb()
 
 __all__ = [
     "ConvexHull",
@@ -27,6 +39,7 @@ __all__ = [
     "InputError",
     "LoadOptions",
     "MissingExtraError",
+    "MissingLibraryError",
     "Normalization",
     "OrientedCloud",
     "OutputError",

@@ -61,6 +61,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import InputError, OutputError, PointcvxError
+from .io.files import atomic_path
 from .progress import LazyBar
 
 log = logging.getLogger(__name__)
@@ -375,14 +376,8 @@ class _ShapeBench:
         target = self.outdir / "hulls" / method / setting / f"{self.entry.shape}{suffix}.obj"
         target.parent.mkdir(parents=True, exist_ok=True)
         if run.hull_file is not None and run.hull_file.resolve() != target.resolve():
-            fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent)
-            os.close(fd)
-            try:
+            with atomic_path(target) as tmp:
                 shutil.copyfile(run.hull_file, tmp)
-                os.replace(tmp, target)
-            except BaseException:
-                Path(tmp).unlink(missing_ok=True)
-                raise
         return target.relative_to(self.outdir).as_posix()
 
     # -------------------------------------------------------------- running

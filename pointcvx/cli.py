@@ -16,11 +16,12 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__
-from .errors import InputError, OutputError, PointcvxError
+from .errors import InputError, MissingLibraryError, OutputError, PointcvxError
 from .export import EXTENSIONS as EXPORT_EXTENSIONS
 from .export import FORMATS as EXPORT_FORMATS
 from .progress import LazyBar
 from .simplify import TARGETS as ENGINE_TARGETS
+from .syslibs import install_hint, missing_library
 
 log = logging.getLogger("pointcvx")
 
@@ -505,13 +506,30 @@ def main(argv: list[str] | None = None) -> int:
     except MemoryError:
         print("pointcvx: error: out of memory (try a smaller --points)", file=sys.stderr)
         return EXIT_INPUT
-    except Exception as exc:  # noqa: BLE001 - the CLI promises one line, never a traceback
-        if getattr(args, "verbose", False):
-            log.exception("internal error")
-        first = str(exc).splitlines()[0] if str(exc) else ""
-        print(f"pointcvx: internal error: {type(exc).__name__}: {first} (rerun with -v for details)",
+    except (ImportError, OSError) as exc:
+        library = missing_library(exc)
+        if library is None:
+            return _internal_error(args, exc)
+        print(f"pointcvx: error: {MissingLibraryError(_missing_module(exc), library, install_hint(library))}",
               file=sys.stderr)
-        return EXIT_INTERNAL
+        return EXIT_INPUT
+    except Exception as exc:  # noqa: BLE001 - the CLI promises one line, never a traceback
+        return _internal_error(args, exc)
+
+
+def _missing_module(exc: BaseException) -> str:
+    """The package whose native module failed to load (its folder's name), or 'a dependency'."""
+    path = getattr(exc, "path", None)
+    return Path(path).parent.name if path else "a dependency"
+
+
+def _internal_error(args: argparse.Namespace, exc: BaseException) -> int:
+    if getattr(args, "verbose", False):
+        log.exception("internal error")
+    first = str(exc).splitlines()[0] if str(exc) else ""
+    print(f"pointcvx: internal error: {type(exc).__name__}: {first} (rerun with -v for details)",
+          file=sys.stderr)
+    return EXIT_INTERNAL
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -297,7 +297,8 @@ class OrientedCloud:
         consistent); without normals it is cleaned and its normals estimated as a scan. A triangle
         mesh is sampled like any mesh.
         """
-        import open3d as o3d
+        from .syslibs import import_open3d
+        o3d = import_open3d()
 
         if isinstance(geometry, o3d.geometry.TriangleMesh):
             import trimesh
@@ -321,7 +322,8 @@ class OrientedCloud:
     # ------------------------------------------------------------------ conversions
     def to_open3d(self) -> Any:
         """An ``open3d.geometry.PointCloud`` with points, normals and colours."""
-        import open3d as o3d
+        from .syslibs import import_open3d
+        o3d = import_open3d()
 
         pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(self.points))
         pc.normals = o3d.utility.Vector3dVector(self.normals)
@@ -344,7 +346,8 @@ class OrientedCloud:
         """The kept mesh as an ``open3d.geometry.TriangleMesh`` (mesh and CAD inputs only)."""
         if self.mesh is None:
             raise InputError(f"this {self.modality} cloud has no mesh")
-        import open3d as o3d
+        from .syslibs import import_open3d
+        o3d = import_open3d()
 
         m = o3d.geometry.TriangleMesh(
             o3d.utility.Vector3dVector(np.asarray(self.mesh.vertices, dtype=np.float64)),

@@ -31,3 +31,11 @@ class MissingExtraError(PointcvxError, ImportError):
 
 class OutputError(PointcvxError, OSError):
     """An output cannot be written (exists without overwrite, unwritable directory...)."""
+
+
+class MissingLibraryError(PointcvxError, ImportError):
+    """A system shared library that a dependency's binary wheel links is not installed."""
+
+    def __init__(self, module: str, library: str, hint: str):
+        self.module, self.library, self.hint = module, library, hint
+        super().__init__(f"{module} needs the system library {library}, which this machine lacks: {hint}")

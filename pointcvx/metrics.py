@@ -299,7 +299,8 @@ def _segment_distance(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.nd
 
 def _distance_fn(vertices: np.ndarray, faces: np.ndarray):
     """A function (n, 3) points -> (n,) unsigned distance to a triangle soup (Embree, float32)."""
-    import open3d as o3d
+    from .syslibs import import_open3d
+    o3d = import_open3d()
 
     from .solid import raycasting_scene
 

@@ -168,7 +168,8 @@ class Decomposition:
 
     def to_open3d(self) -> list:
         """A list of ``open3d.geometry.TriangleMesh``, one per hull, with vertex normals."""
-        import open3d as o3d
+        from .syslibs import import_open3d
+        o3d = import_open3d()
 
         out = []
         for h in self.hulls:

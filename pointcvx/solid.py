@@ -20,7 +20,8 @@ _VOTE_DIRS /= np.linalg.norm(_VOTE_DIRS, axis=1, keepdims=True)
 
 def raycasting_scene(vertices: np.ndarray, faces: np.ndarray):
     """An open3d ``RaycastingScene`` (Embree) over (v, 3) vertices and (f, 3) faces."""
-    import open3d as o3d
+    from .syslibs import import_open3d
+    o3d = import_open3d()
 
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(
@@ -81,7 +82,8 @@ class Solid:
         return self.vertices.min(axis=0), self.vertices.max(axis=0)
 
     def _rays(self, origins: np.ndarray, dirs: np.ndarray):
-        import open3d as o3d
+        from .syslibs import import_open3d
+        o3d = import_open3d()
 
         rays = np.concatenate([origins, dirs], axis=1).astype(np.float32)
         return o3d.core.Tensor(rays)
@@ -120,7 +122,8 @@ class Solid:
 
     def distance(self, points: np.ndarray) -> np.ndarray:
         """(n,) float: unsigned distance to the surface."""
-        import open3d as o3d
+        from .syslibs import import_open3d
+        o3d = import_open3d()
 
         q = o3d.core.Tensor(np.asarray(points, dtype=np.float32))
         return self.scene.compute_distance(q).numpy().astype(np.float64)

@@ -300,7 +300,8 @@ def _closest(vertices: np.ndarray, faces: np.ndarray, query: np.ndarray, chunk: 
 
     Returns (n,) float32 distance, (n, 3) float32 closest points, (n,) int64 triangle ids.
     """
-    import open3d as o3d
+    from .syslibs import import_open3d
+    o3d = import_open3d()
 
     scene = raycasting_scene(vertices, faces)
     n = len(query)

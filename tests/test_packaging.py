@@ -30,9 +30,12 @@ def test_readme_gives_exactly_two_setup_commands():
     assert "pytest" in cmds["test-command"]
 
 
-def test_ci_runs_the_readme_test_command():
+def test_ci_runs_the_readme_commands_the_main_one_before_any_system_package():
     ci = (ROOT / ".ci" / "run").read_text()
-    assert "test-command" in ci and "libusb-1.0-0" in ci
+    assert "readme_block main-command" in ci and "readme_block test-command" in ci
+    main_run, apt = ci.index('bash -euo pipefail -c "$main_cmd"'), ci.index("apt-get install")
+    assert main_run < apt and ci.index('bash -euo pipefail -c "$test_cmd"') > apt
+    assert "libusb" not in ci[apt:ci.index("\n", apt)]  # the tests, too, run on the bundled copy
     assert "ruff check" in ci
 
 

@@ -34,8 +34,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError, MissingExtraError, OutputError
-from .files import check_readable
+from ..errors import InputError, MissingExtraError, MissingLibraryError, OutputError
+from ..syslibs import install_hint, missing_library
+from .files import atomic_path, check_readable
 
 log = logging.getLogger(__name__)
 
@@ -60,11 +61,15 @@ _MODEL_IDS = itertools.count()
 
 
 def import_gmsh():
-    """The ``gmsh`` module, or :class:`MissingExtraError` naming the ``cad`` extra."""
+    """The ``gmsh`` module; :class:`MissingExtraError` naming the ``cad`` extra if it is not
+    installed, :class:`MissingLibraryError` naming the system package if its wheel cannot load."""
     try:
         import gmsh
     except (ImportError, OSError) as exc:  # OSError: the wheel's shared libraries failed to load
         log.debug("gmsh unavailable: %s", exc)
+        library = missing_library(exc)
+        if library is not None:  # installed, but a system library it links is missing
+            raise MissingLibraryError("STEP/IGES input (gmsh)", library, install_hint(library)) from None
         raise MissingExtraError("STEP/IGES input", "cad", "gmsh") from None
     return gmsh
 
@@ -431,38 +436,27 @@ def write_step_sample(path: str | os.PathLike) -> Path:
     one solid. Written atomically; returns the path."""
     gmsh = import_gmsh()
     target = Path(path)
-    parent = target.parent if str(target.parent) else Path(".")
-    if not parent.is_dir():
-        raise OutputError(f"{parent}: output directory does not exist")
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".step", dir=parent)
-    os.close(fd)
-    try:
-        with _LOCK, captured_output(), gmsh_session(gmsh):
-            occ = gmsh.model.occ
-            base = occ.addBox(0, 0, 0, 60, 40, 8)
-            wall = occ.addBox(0, 0, 0, 8, 40, 50)
-            boss = occ.addCylinder(44, 20, 8, 0, 0, 10, 7)
-            gusset_face = occ.addPlaneSurface([occ.addCurveLoop([
-                occ.addLine(p1, p2) for p1, p2 in _closed(
-                    [occ.addPoint(8, 17, 8), occ.addPoint(30, 17, 8), occ.addPoint(8, 17, 40)])
-            ])])
-            gusset = occ.extrude([(2, gusset_face)], 0, 6, 0)
-            gusset_vol = [t for d, t in gusset if d == 3]
-            body, _ = occ.fuse([(3, base)], [(3, wall), (3, boss)] + [(3, t) for t in gusset_vol])
-            hole_base = occ.addCylinder(44, 20, -1, 0, 0, 20, 3.5)
-            hole_wall = occ.addCylinder(-1, 10, 36, 10, 0, 0, 4)
-            hole_wall2 = occ.addCylinder(-1, 30, 36, 10, 0, 0, 4)
-            occ.cut(body, [(3, hole_base), (3, hole_wall), (3, hole_wall2)])
-            occ.synchronize()
-            try:
-                gmsh.write(tmp)
-            except Exception as exc:  # gmsh raises plain Exception
-                raise OutputError(f"{target}: writing the STEP failed ({_gmsh_detail(gmsh, exc)})") from None
-        os.replace(tmp, target)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise
+    with atomic_path(target) as tmp, _LOCK, captured_output(), gmsh_session(gmsh):
+        occ = gmsh.model.occ
+        base = occ.addBox(0, 0, 0, 60, 40, 8)
+        wall = occ.addBox(0, 0, 0, 8, 40, 50)
+        boss = occ.addCylinder(44, 20, 8, 0, 0, 10, 7)
+        gusset_face = occ.addPlaneSurface([occ.addCurveLoop([
+            occ.addLine(p1, p2) for p1, p2 in _closed(
+                [occ.addPoint(8, 17, 8), occ.addPoint(30, 17, 8), occ.addPoint(8, 17, 40)])
+        ])])
+        gusset = occ.extrude([(2, gusset_face)], 0, 6, 0)
+        gusset_vol = [t for d, t in gusset if d == 3]
+        body, _ = occ.fuse([(3, base)], [(3, wall), (3, boss)] + [(3, t) for t in gusset_vol])
+        hole_base = occ.addCylinder(44, 20, -1, 0, 0, 20, 3.5)
+        hole_wall = occ.addCylinder(-1, 10, 36, 10, 0, 0, 4)
+        hole_wall2 = occ.addCylinder(-1, 30, 36, 10, 0, 0, 4)
+        occ.cut(body, [(3, hole_base), (3, hole_wall), (3, hole_wall2)])
+        occ.synchronize()
+        try:
+            gmsh.write(str(tmp))
+        except Exception as exc:  # gmsh raises plain Exception
+            raise OutputError(f"{target}: writing the STEP failed ({_gmsh_detail(gmsh, exc)})") from None
     return target
 
 

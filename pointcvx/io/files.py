@@ -25,12 +25,30 @@ def check_readable(path: str | os.PathLike) -> Path:
     return p
 
 
+def current_umask() -> int:
+    """The process's umask (read from /proc where it can be, which changes nothing)."""
+    with contextlib.suppress(OSError, ValueError):
+        with open("/proc/self/status", encoding="ascii") as status:
+            for line in status:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    mask = os.umask(0o022)  # elsewhere: set and restore (process-wide, for an instant)
+    os.umask(mask)
+    return mask
+
+
+def user_file_mode() -> int:
+    """The mode ``open()`` gives a new file: 0o666 less the umask (mkstemp's are 0o600)."""
+    return 0o666 & ~current_umask()
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike, overwrite: bool = True) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; move it onto ``path`` only if the block succeeds.
 
     A failure leaves any existing file untouched and no partial output behind. With
     ``overwrite=False`` an existing ``path`` raises :class:`OutputError` before anything runs.
+    The file gets the mode a plain ``open()`` would give it (the user's umask), not mkstemp's 0600.
     """
     target = Path(path)
     if target.exists() and not overwrite:
@@ -40,6 +58,7 @@ def atomic_path(path: str | os.PathLike, overwrite: bool = True) -> Iterator[Pat
         raise OutputError(f"{parent}: output directory does not exist")
     fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=target.suffix or ".tmp", dir=parent)
     os.close(fd)
+    os.chmod(tmp, user_file_mode())
     tmp_path = Path(tmp)
     try:
         yield tmp_path

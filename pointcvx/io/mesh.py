@@ -84,7 +84,8 @@ def inside_fraction(mesh, points: np.ndarray, n_rays: int = 8, seed: int = 0) ->
 
     Independent of face winding; uses Embree through open3d's RaycastingScene.
     """
-    import open3d as o3d
+    from ..syslibs import import_open3d
+    o3d = import_open3d()
 
     from ..solid import raycasting_scene
 

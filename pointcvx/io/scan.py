@@ -355,7 +355,8 @@ def read_pcd(path: str | os.PathLike) -> Arrays:
 
 
 def _read_pcd_open3d(p: Path, n: int) -> Arrays:
-    import open3d as o3d
+    from ..syslibs import import_open3d
+    o3d = import_open3d()
 
     with o3d.utility.VerbosityContextManager(o3d.utility.VerbosityLevel.Error):
         pc = o3d.io.read_point_cloud(str(p), format="pcd")

@@ -21,7 +21,6 @@ from __future__ import annotations
 import json
 import logging
 import os
-import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -30,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from ..features.pairs import sample_triplets
+from ..io.files import atomic_path
 from ..io.mesh import read_mesh, sample_surface
 from ..solid import Solid
 from ..watertight import watertight_mesh
@@ -196,15 +196,8 @@ def save_sample(path: str | os.PathLike, sample: dict[str, np.ndarray], compact:
     path = Path(path)
     if compact:
         sample = compact_arrays(sample)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".npz.tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            np.savez_compressed(f, **sample)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:
+        np.savez_compressed(f, **sample)
 
 
 def load_sample(path: str | os.PathLike) -> dict[str, np.ndarray]:
@@ -226,10 +219,8 @@ def load_sample(path: str | os.PathLike) -> dict[str, np.ndarray]:
 
 
 def _write_json(path: Path, obj: Any) -> None:
-    fd, tmp = tempfile.mkstemp(prefix=".manifest.", suffix=".tmp", dir=path.parent)
-    with os.fdopen(fd, "w") as f:
+    with atomic_path(path) as tmp, open(tmp, "w") as f:
         json.dump(obj, f, indent=1, sort_keys=True)
-    os.replace(tmp, path)
 
 
 def item_seed(seed: int, index: int, source: str) -> int:
