@@ -1,9 +1,12 @@
 """pointcvx: approximate convex decomposition of splats, scans, meshes and CAD parts.
 
-The pipeline, one module each: load (:mod:`pointcvx.io`) -> oriented cloud
-(:mod:`pointcvx.cloud`) -> solid (:mod:`pointcvx.solid`, :mod:`pointcvx.watertight`) -> features
-(:mod:`pointcvx.features`) -> recursive decomposition (:mod:`pointcvx.recursive`) -> hulls and
-export (:mod:`pointcvx.result`); :func:`decompose` (:mod:`pointcvx.pipeline`) runs it all.
+The pipeline, a package or module each: load (:mod:`pointcvx.io`) -> oriented cloud
+(:mod:`pointcvx.cloud`) -> solid (:mod:`pointcvx.solid`) -> features (:mod:`pointcvx.features`,
+:mod:`pointcvx.model`) -> decomposition (:mod:`pointcvx.decomposition`) -> hulls
+(:mod:`pointcvx.result`) -> export (:mod:`pointcvx.export`); :func:`decompose`
+(:mod:`pointcvx.pipeline`) runs it all, with the options of :mod:`pointcvx.options`. On top:
+the evaluation protocol (:mod:`pointcvx.evaluate`), batch and bench (:mod:`pointcvx.apps`) and
+the command line (:mod:`pointcvx.cli`). This module is the public face only.
 """
 
 from __future__ import annotations
@@ -19,12 +22,12 @@ from .errors import (
     PointcvxError,
     UnknownFormatError,
 )
-from .io import LoadOptions, detect, load
+from .io import as_cloud, detect, load
+from .options import DecomposeOptions, LoadOptions
 from .pipeline import decompose
 from .result import ConvexHull, Decomposition
 from .syslibs import preload_libusb
-
-__version__ = "0.1.0"
+from .version import __version__
 
 logging.getLogger(__name__).addHandler(logging.NullHandler())
 
@@ -34,7 +37,9 @@ preload_libusb()
 
 __all__ = [
     "ConvexHull",
+    "DecomposeOptions",
     "Decomposition",
+    "as_cloud",
     "decompose",
     "InputError",
     "LoadOptions",

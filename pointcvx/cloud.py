@@ -1,5 +1,8 @@
 """The oriented point cloud: the one type every loader produces and every later stage consumes.
 
+Plain data: it imports no loader (:mod:`pointcvx.io` builds clouds from files, arrays, trimesh
+and open3d geometry; :func:`pointcvx.io.save_cloud` writes one).
+
 Coordinates are float64 numpy arrays. A cloud remembers the similarity transform that took the
 input's units to its current coordinates (:class:`Normalization`), so results computed in the
 normalised frame ([-1, 1]^3, as the benchmark judges shapes) can be mapped back to the input's
@@ -253,72 +256,6 @@ class OrientedCloud:
         out.info["resampled_from"] = len(self)
         return out
 
-    # ------------------------------------------------------------------ constructors
-    @classmethod
-    def from_arrays(
-        cls,
-        points: Any,
-        normals: Any = None,
-        colors: Any = None,
-        *,
-        modality: str = "points",
-        **scan_options: Any,
-    ) -> OrientedCloud:
-        """Build from (n, 3) ``points`` and optional (n, 3) ``normals``.
-
-        Without normals, they are estimated and oriented as for a scan (see
-        :func:`pointcvx.io.scan.orient_cloud`), with ``scan_options`` passed on.
-        """
-        pts = check_points(points)
-        check_extent(pts)
-        if normals is None:
-            from .io.scan import cloud_from_points
-
-            return cloud_from_points(pts, colors=colors, modality=modality, **scan_options)
-        return cls(pts, normals, colors=colors, modality=modality,
-                   info={"normals": "given"})
-
-    @classmethod
-    def from_trimesh(
-        cls, mesh: Any, n_points: int = 20000, seed: int = 0, **options: Any
-    ) -> OrientedCloud:
-        """Sample a ``trimesh.Trimesh`` (or Scene) into an oriented cloud (see pointcvx.io.mesh)."""
-        from .io.mesh import cloud_from_mesh
-
-        return cloud_from_mesh(mesh, n_points=n_points, seed=seed, **options)
-
-    @classmethod
-    def from_open3d(
-        cls, geometry: Any, n_points: int = 20000, seed: int = 0, **options: Any
-    ) -> OrientedCloud:
-        """Build from an ``open3d.geometry.PointCloud`` or ``TriangleMesh``.
-
-        A point cloud keeps its points and normals if it has normals (their signs are made
-        consistent); without normals it is cleaned and its normals estimated as a scan. A triangle
-        mesh is sampled like any mesh.
-        """
-        from .syslibs import import_open3d
-        o3d = import_open3d()
-
-        if isinstance(geometry, o3d.geometry.TriangleMesh):
-            import trimesh
-
-            mesh = trimesh.Trimesh(
-                np.asarray(geometry.vertices), np.asarray(geometry.triangles), process=False
-            )
-            return cls.from_trimesh(mesh, n_points=n_points, seed=seed, **options)
-        if isinstance(geometry, o3d.geometry.PointCloud):
-            pts = np.asarray(geometry.points)
-            colors = np.asarray(geometry.colors) if geometry.has_colors() else None
-            normals = np.asarray(geometry.normals) if geometry.has_normals() else None
-            from .io.scan import cloud_from_points
-
-            if normals is not None:  # a cloud with normals is taken as clean unless told otherwise
-                options.setdefault("outlier_neighbors", 0)
-            return cloud_from_points(pts, normals=normals, colors=colors, n_points=n_points,
-                                     seed=seed, modality="points", **options)
-        raise InputError(f"cannot build a cloud from {type(geometry).__name__}")
-
     # ------------------------------------------------------------------ conversions
     def to_open3d(self) -> Any:
         """An ``open3d.geometry.PointCloud`` with points, normals and colours."""
@@ -355,9 +292,3 @@ class OrientedCloud:
         )
         m.compute_vertex_normals()
         return m
-
-    def save_ply(self, path: str) -> None:
-        """Write points, normals (and colours) as a binary PLY, atomically, in cloud coordinates."""
-        from .io.ply import write_cloud_ply
-
-        write_cloud_ply(path, self.points, self.normals, self.colors)

@@ -176,7 +176,7 @@ def robot_hulls(hulls, thickness: float = 1e-3) -> dict[int, tuple[np.ndarray, n
 
     ``hulls``: ((v, 3) float, (f, 3) int) pairs.
     """
-    from .metrics import convex_hull
+    from .decomposition.hull import convex_hull
 
     pairs = [(np.asarray(v, dtype=np.float64), np.asarray(f, dtype=np.int64)) for v, f in hulls]
     size = max((float(np.ptp(v, axis=0).max()) for v, _ in pairs if len(v)), default=1.0)
@@ -345,7 +345,7 @@ def usda_text(name: str, hulls, visual: tuple[np.ndarray, np.ndarray] | None = N
 # ------------------------------------------------------------------------------ report
 def report(result) -> dict[str, Any]:
     """The JSON report of a :class:`~pointcvx.result.Decomposition` (input units for volumes)."""
-    from . import __version__
+    from .version import __version__
 
     hulls = []
     for i, h in enumerate(result.hulls):
@@ -353,7 +353,7 @@ def report(result) -> dict[str, Any]:
         hulls.append({"name": f"hull_{i:03d}", "vertices": int(len(h.vertices)),
                       "faces": int(len(h.faces)), "volume": volume,
                       "added_volume": float(h.added_volume), "concavity": float(h.concavity),
-                      "points": int(h.points)})
+                      "points": int(h.n_points)})
     volume = float(sum(h["volume"] for h in hulls))
     added = float(sum(h["added_volume"] for h in hulls))
     totals = {"hulls": len(hulls), "vertices": int(sum(h["vertices"] for h in hulls)),
@@ -375,7 +375,7 @@ def report_text(result) -> str:
 
 
 # ------------------------------------------------------------------------------ writing
-def _visual_mesh(result) -> tuple[np.ndarray, np.ndarray] | None:
+def visual_mesh(result) -> tuple[np.ndarray, np.ndarray] | None:
     """The input mesh in input units ((v, 3) float, (f, 3) int), if the input was a mesh."""
     mesh = result.cloud.mesh
     if mesh is None or len(getattr(mesh, "faces", ())) == 0:
@@ -404,7 +404,7 @@ def plan(result, path: str | os.PathLike, format: str | None = None, per_hull: b
     if fmt == "usda":  # colliders as the robot formats have them: flat hulls grown to thin slabs
         solids = robot_hulls(pairs)
         mass, center, _ = mass_properties(list(solids.values()), density)
-        return {main: usda_text(usd_identifier(main.stem), solids, _visual_mesh(result), mass, center)}
+        return {main: usda_text(usd_identifier(main.stem), solids, visual_mesh(result), mass, center)}
     name = main.stem
     files: dict[Path, str | bytes] = {main: ""}
     solids = robot_hulls(pairs)
@@ -412,10 +412,10 @@ def plan(result, path: str | os.PathLike, format: str | None = None, per_hull: b
     for f, (v, fc) in zip(collision, solids.values(), strict=True):
         files[main.parent / f] = mesh_obj_text(v, fc, Path(f).stem)
     pairs = list(solids.values())
-    visual_mesh = _visual_mesh(result)
-    if visual_mesh is not None:
+    shown = visual_mesh(result)
+    if shown is not None:
         visual = [f"{name}.obj"]
-        files[main.parent / visual[0]] = mesh_obj_text(*visual_mesh, name=name)
+        files[main.parent / visual[0]] = mesh_obj_text(*shown, name=name)
     else:
         visual = list(collision)
     if fmt == "urdf":

@@ -35,3 +35,20 @@ class LazyBar:
     def close(self) -> None:
         if self.bar is not None:
             self.bar.close()
+
+
+class StageBars:
+    """One :class:`LazyBar` per pipeline stage, as a ``progress(stage, done, total)`` callback."""
+
+    def __init__(self, enabled: bool):
+        self.enabled = enabled
+        self.bars: dict[str, LazyBar] = {}
+
+    def __call__(self, stage: str, done: int, total: int) -> None:
+        if stage not in self.bars:
+            self.bars[stage] = LazyBar(self.enabled, stage, "step" if stage == "features" else "hull")
+        self.bars[stage].set(done, total)
+
+    def close(self) -> None:
+        for bar in self.bars.values():
+            bar.close()

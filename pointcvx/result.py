@@ -1,4 +1,5 @@
-"""The one result type: a convex decomposition, plain numpy at the boundary."""
+"""The one result type, a convex decomposition with plain numpy at the boundary, and how it is
+cut from a split tree (:func:`cut_decomposition`)."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from .cloud import OrientedCloud
 from .errors import OutputError
@@ -27,7 +29,7 @@ class ConvexHull:
     faces : (f, 3) int64, wound outward.
     concavity : float
         Concavity of the part it covers, in the normalised [-1, 1]^3 frame.
-    points : int
+    n_points : int
         How many cloud points the part holds.
     added_volume : float
         Volume added by engine limits (:meth:`Decomposition.limit_hulls`); 0 for the plain hull.
@@ -36,7 +38,7 @@ class ConvexHull:
     vertices: np.ndarray
     faces: np.ndarray
     concavity: float
-    points: int
+    n_points: int
     added_volume: float = 0.0
 
     @property
@@ -137,8 +139,6 @@ class Decomposition:
         Splits already made are reused; deeper ones are computed on demand. Features are never
         recomputed (a shape that needed no split computes them here if the new cut splits).
         """
-        from .pipeline import cut_decomposition
-
         if self._decomposer is None:
             raise OutputError("this decomposition no longer holds its split tree (it was loaded "
                               "from disk); decompose again to re-cut it")
@@ -188,18 +188,18 @@ class Decomposition:
         triangles), ``"physx-gpu"`` (64 vertices, 64 triangles), ``"newton"`` (64 vertices),
         ``"unity"`` (255 triangles); ``max_vertices`` / ``max_faces`` (triangles) tighten them.
         A hull over a cap is replaced by a coarser one that contains it (see
-        :mod:`pointcvx.simplify`), so no point loses coverage; each hull's ``added_volume`` says
+        :mod:`pointcvx.decomposition.limits`), so no point loses coverage; each hull's ``added_volume`` says
         what it cost. The caps are kept in ``params["hull_limits"]`` and :meth:`recut` applies
         them again.
         """
-        from .simplify import hull_limits, simplify_hull
+        from .decomposition.limits import hull_limits, simplify_hull
 
         limits = hull_limits(target, max_vertices, max_faces)
         t = time.perf_counter()
         hulls = []
         for h in self.hulls:
             v, f, added = simplify_hull(h.vertices, h.faces, limits)
-            hulls.append(ConvexHull(v, f, h.concavity, h.points, h.added_volume + added))
+            hulls.append(ConvexHull(v, f, h.concavity, h.n_points, h.added_volume + added))
         seconds = time.perf_counter() - t
         timings = dict(self.timings)
         timings["limits"] = timings.get("limits", 0.0) + seconds
@@ -248,3 +248,48 @@ class Decomposition:
         from .export import report
 
         return report(self)
+
+
+def cut_decomposition(decomposer, cloud: OrientedCloud, params: dict, timings: dict,
+                      progress=None) -> Decomposition:
+    """Cut ``decomposer``'s tree (a :class:`~pointcvx.decomposition.tree.Decomposer`) at
+    ``params`` (threshold, max_hulls, merge) into a result; ``progress(stage, done, total)``."""
+    from .decomposition.hull import convex_hull
+
+    timings = dict(timings)
+    start = timings.pop("_start", None)
+    # The features are computed once per decomposer, when a cut first splits; every cut that
+    # splits reports their time, whichever computed them, and a cut that does not reports 0.
+    timings["features"] = 0.0
+    if decomposer.will_split(params["threshold"], params["max_hulls"]):
+        # Outside the single-thread limit below: the model's forward pass uses every core.
+        decomposer.load_features(progress)
+        timings["features"] = decomposer.feature_seconds
+    t = time.perf_counter()
+    report = None if progress is None else (
+        lambda n, worst: progress("split", n, params["max_hulls"]))
+    with threadpool_limits(1):  # many small BLAS calls: threads only add overhead
+        leaves = decomposer.cut(params["threshold"], params["max_hulls"], progress=report)
+        timings["split"] = time.perf_counter() - t
+        t = time.perf_counter()
+        if params["merge"]:
+            parts, concavity = decomposer.merge(leaves, params["threshold"])
+        else:
+            parts, concavity = decomposer.leaf_parts(leaves, params["threshold"])
+    timings["merge"] = time.perf_counter() - t
+    t = time.perf_counter()
+    labels = np.empty(len(cloud), dtype=np.int64)
+    hulls = []
+    back = cloud.normalization
+    for i, (idx, conc) in enumerate(zip(parts, concavity, strict=True)):
+        labels[idx] = i
+        h = convex_hull(cloud.points[idx])
+        hulls.append(ConvexHull(back.inverse(h.vertices), h.faces.astype(np.int64), float(conc),
+                                int(len(idx))))
+    timings["hulls"] = time.perf_counter() - t
+    if start is not None:
+        timings["total"] = time.perf_counter() - start
+    else:
+        timings["total"] = sum(v for k, v in timings.items() if k != "total")
+    return Decomposition(hulls, labels, cloud, decomposer.tree.as_table(), timings, params,
+                         _decomposer=decomposer)

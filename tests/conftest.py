@@ -6,6 +6,8 @@ from pathlib import Path
 
 import pytest
 
+import pointcvx  # noqa: F401 - first: makes open3d's libusb loadable for tests that import open3d
+
 ROOT = Path(__file__).resolve().parents[1]
 DATA = (ROOT / ".." / "shared" / "data").resolve()
 SAMPLES = ROOT / "io"
@@ -39,6 +41,5 @@ def source(tmp_path_factory) -> Path:
 def result(source):
     """The torus decomposed with the bundled model (3,000 points, seed 0): hulls of about 200
     vertices each."""
-    import pointcvx
 
     return pointcvx.decompose(source, features="model", n_points=3000, seed=0)

@@ -2,8 +2,8 @@
 local process pool and on a Ray instance started on the loopback interface, with an injected
 corrupt asset and a worker killed (SIGKILL, by its process id) while it runs an asset.
 
-Every run uses the bundled model, 3000 points and at most 8 hulls, so that one asset takes about
-a second on one core.
+Every run uses the bundled model, 3000 points and at most 8 hulls, so that each asset is quick on
+one core.
 """
 
 from __future__ import annotations
@@ -21,15 +21,15 @@ import pytest
 from shapes import l_block
 
 from conftest import DATA
-from pointcvx import batch
-from pointcvx.batch import BatchOptions, Manifest, asset_seed, find_assets, run_batch
+from pointcvx.apps import batch
+from pointcvx.apps.batch import BatchOptions, Manifest, asset_seed, find_assets, run_batch
 from pointcvx.cli import main
 from pointcvx.errors import InputError, MissingExtraError, OutputError
 
-FAST = BatchOptions(features="model", n_points=3000, max_hulls=8, timeout=300)
+FAST = BatchOptions.create(features="model", n_points=3000, max_hulls=8, timeout=300)
 FAST_ARGS = ["--features", "model", "-n", "3000", "-k", "8", "--timeout", "300", "-q"]
 DEV = DATA / "dev"
-# A dozen real shapes of every category (each about a second with FAST on one core).
+# A dozen real shapes of every category (each quick with FAST on one core).
 DOZEN = ["objects/mug.obj", "objects/duck.obj", "objects/Kettle.obj", "objects/truck.obj",
          "characters/spot.obj", "characters/teddy.obj", "characters/cheburashka.obj",
          "scans/fertility.off", "scans/max_planck.obj", "cad/abc3.stl", "cad/fandisk.obj",
@@ -158,14 +158,14 @@ def test_manifest_survives_a_line_cut_short(tmp_path):
 
 
 def test_guard_interrupts_past_time_and_memory_limits():
-    guard = batch._Guard(timeout=0.3, max_mb=None, interval=0.02).start()
+    guard = batch.Guard(timeout=0.3, max_mb=None, interval=0.02).start()
     t0 = time.monotonic()
     with pytest.raises(batch.AssetTimeout):
         while time.monotonic() - t0 < 30:
             sum(range(1000))
     guard.stop()
     assert guard.reason == "timeout after 0.3 s" and time.monotonic() - t0 < 5
-    guard = batch._Guard(timeout=60, max_mb=batch._rss_mb() + 200, interval=0.02).start()
+    guard = batch.Guard(timeout=60, max_mb=batch.rss_mb() + 200, interval=0.02).start()
     with pytest.raises(batch.AssetMemoryError):
         hog = []
         for _ in range(200):
@@ -179,17 +179,17 @@ def test_guard_interrupts_past_time_and_memory_limits():
 def test_worker_loads_the_model_once_and_runs_assets_with_it(tmp_path, monkeypatch):
     """The per-asset function of both engines, in this process: the worker's start loads the
     model; later assets reuse it; a failing asset is a record, not an exception."""
-    from pointcvx import _bench_worker
-    from pointcvx.pipeline import _cached_model
+    from pointcvx.apps.batch import worker
+    from pointcvx.model.weights import cache_info
 
-    monkeypatch.setattr(_bench_worker, "_limit_threads", lambda threads: None)  # keep the tests' threads
+    monkeypatch.setattr(worker, "limit_threads", lambda threads: None)  # keep the tests' threads
     opts = batch.init_worker(FAST, workers_here=2)
     assert opts.max_memory_mb > 0  # resolved: a share of this machine's memory
-    loads = _cached_model.cache_info().misses
+    loads = cache_info().misses
     outs = [batch.run_asset({"id": "nope", "path": str(tmp_path / "nope.obj")}, opts, str(tmp_path)),
             batch.run_asset({"id": "objects/mug", "path": str(DEV / "objects" / "mug.obj")}, opts,
                             str(tmp_path))]
-    assert _cached_model.cache_info().misses == loads  # no model loaded during the assets
+    assert cache_info().misses == loads  # no model loaded during the assets
     assert outs[0]["record"]["status"] == "failed" and "no such file" in outs[0]["record"]["error"]
     assert outs[0]["files"] == {}
     rec = outs[1]["record"]
@@ -210,15 +210,19 @@ def test_bad_batch_inputs_are_one_line_errors(tmp_path, capsys):
     afile = tmp_path / "taken"
     afile.write_text("x")
     assert main(["batch", str(DEV / "objects" / "mug.obj"), "-o", str(afile)]) == 1
-    assert main(["batch", str(DEV / "objects" / "mug.obj"), "-o", str(tmp_path / "o"), "--jobs", "0"]) == 1
+    with pytest.raises(SystemExit) as usage:  # a usage error: exit status 2
+        main(["batch", str(DEV / "objects" / "mug.obj"), "-o", str(tmp_path / "o"), "--jobs", "0"])
+    assert usage.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 4 and all(line.startswith("pointcvx: error: ") for line in err)
     assert "no shape file in this folder" in err[0]
     assert "a JSON manifest must be a list" in err[1]
     assert "exists and is not a folder" in err[2]
-    assert "jobs must be at least 1" in err[3]
+    assert "--jobs: must be positive" in err[3]
     with pytest.raises(OutputError):
         run_batch([DEV / "objects" / "mug.obj"], afile, FAST)
+    with pytest.raises(InputError, match="jobs must be at least 1"):
+        run_batch([DEV / "objects" / "mug.obj"], tmp_path / "o", FAST, jobs=0)
 
 
 def test_ray_engine_without_ray_names_the_extra(tmp_path, monkeypatch, capsys):
@@ -299,7 +303,7 @@ def test_same_hulls_with_one_or_two_workers(local_run, tmp_path):
 def test_timeout_is_a_recorded_failure_then_retried(tmp_path):
     mug = DEV / "objects" / "mug.obj"
     out = tmp_path / "out"
-    opts = BatchOptions(**{**FAST.__dict__, "timeout": 0.01})
+    opts = FAST.replace(timeout=0.01)
     report = run_batch([mug], out, opts, jobs=1)
     (row,) = report.rows
     assert row["status"] == "failed" and row["error"] == "timeout after 0.01 s"
@@ -348,25 +352,25 @@ def test_default_features_are_auto_and_the_model_is_part_of_their_fingerprint(tm
     """With "auto" a splat's output depends on the model: another checkpoint is another batch;
     with per-shape optimisation the checkpoint plays no part."""
     opts = BatchOptions()
-    assert opts.features == "auto"
+    assert opts.decompose.features == "auto"
     opts.check()
     other = tmp_path / "other.pt"
     other.write_bytes(b"not the bundled weights")
-    assert BatchOptions(model=str(other)).fingerprint() != opts.fingerprint()
-    assert (BatchOptions(features="optimize", model=str(other)).fingerprint()
-            == BatchOptions(features="optimize").fingerprint())
+    assert BatchOptions.create(model=str(other)).fingerprint() != opts.fingerprint()
+    assert (BatchOptions.create(features="optimize", model=str(other)).fingerprint()
+            == BatchOptions.create(features="optimize").fingerprint())
     with pytest.raises(InputError, match="no such model checkpoint"):
-        BatchOptions(model=str(tmp_path / "missing.pt")).check()
-    with pytest.raises(InputError, match="unknown feature method"):
-        BatchOptions(features="best").check()
+        BatchOptions.create(model=str(tmp_path / "missing.pt")).check()
+    with pytest.raises(InputError, match="unknown features"):
+        BatchOptions.create(features="best").check()
 
 
 def test_subsurface_option_reaches_decompose_and_is_checked(tmp_path):
     from pointcvx.cli import build_parser
+    from pointcvx.cli.batch import batch_options
 
-    opts = batch.options_from_args(build_parser().parse_args(
-        ["batch", "in", "-o", "out", "--subsurface", "0.05"]))
-    assert opts.subsurface == 0.05 and opts.decompose_kwargs(0)["subsurface"] == 0.05
+    opts = batch_options(build_parser().parse_args(["batch", "in", "-o", "out", "--subsurface", "0.05"]))
+    assert opts.decompose.subsurface == 0.05 and opts.decompose_kwargs(0)["subsurface"] == 0.05
     assert opts.fingerprint() != BatchOptions().fingerprint()
-    with pytest.raises(InputError, match="subsurface depth must be positive"):
-        BatchOptions(subsurface=0.0).check()
+    with pytest.raises(InputError, match="subsurface must be positive"):
+        BatchOptions.create(subsurface=0.0).check()

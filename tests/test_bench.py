@@ -16,10 +16,12 @@ import pytest
 import trimesh
 from shapes import l_block
 
-from pointcvx import bench
+from pointcvx.apps import bench
+from pointcvx.cli import build_parser, main
+from pointcvx.cli.bench import bench_options
+from pointcvx.cli.bench import run as cmd_bench
 from pointcvx.cloud import Normalization
-from pointcvx.errors import InputError
-from pointcvx.metrics import evaluate, load_hulls
+from pointcvx.evaluate import evaluate, load_hulls
 
 FAST = ["-n", "3000", "--eval-samples", "2000", "--vhacd-resolution", "20000", "--search-runs", "4",
         "-q"]
@@ -27,9 +29,12 @@ METHODS = "pointcvx,coacd,vhacd,vhacdx"
 
 
 def _args(argv: list[str]) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(prog="pointcvx")
-    bench.add_parser(parser.add_subparsers(dest="command"))
-    return parser.parse_args(["bench", *argv])
+    return build_parser().parse_args(["bench", *argv])
+
+
+def _bench(argv: list[str]) -> int:
+    """``pointcvx bench ARGV``: its exit status."""
+    return main(["bench", *argv])
 
 
 def _rows(out) -> list[dict]:
@@ -51,7 +56,7 @@ def run(tmp_path_factory):
     (ds / "README.md").write_text("not a shape\n")
     out = tmp_path_factory.mktemp("bench") / "out"
     argv = [str(ds), "-o", str(out), "--methods", METHODS, *FAST]
-    assert bench.main(argv) == 0
+    assert _bench(argv) == 0
     return {"ds": ds, "out": out, "argv": argv, "rows": _rows(out)}
 
 
@@ -158,7 +163,7 @@ def test_timeout_is_an_error_row_and_non_meshes_skip_the_baselines(tmp_path):
     # V-HACD at 8 million voxels takes seconds: killed after 1 s; two shapes at once
     argv = [str(ds), "-o", str(out), "--methods", "vhacd", "--no-match", "--timeout", "1",
             "--vhacd-resolution", "8000000", "--jobs", "2", "-q"]
-    assert bench.main(argv) == 0
+    assert _bench(argv) == 0
     rows = {r["shape"]: r for r in _rows(out)}
     assert set(rows) == {"l_block", "ball"}
     slow = rows["l_block"]
@@ -171,34 +176,50 @@ def test_timeout_is_an_error_row_and_non_meshes_skip_the_baselines(tmp_path):
     assert "| vhacd | fixed | – | 0 | 1 | 1 |" in text
 
 
-def test_missing_or_bad_input_raises_input_error(tmp_path, monkeypatch):
-    with pytest.raises(InputError, match="no such file or folder"):
-        bench.main([str(tmp_path / "nowhere"), "-o", str(tmp_path / "out"), "-q"])
+def test_missing_or_bad_input_is_a_one_line_error(tmp_path, monkeypatch, capsys):
+    def error(argv: list[str]) -> str:
+        """Run ``pointcvx bench ARGV``, which must fail with status 1; its one-line error."""
+        assert _bench(argv) == 1
+        captured = capsys.readouterr()
+        assert captured.out == ""
+        lines = captured.err.splitlines()
+        assert len(lines) == 1 and lines[0].startswith("pointcvx: error: "), captured.err
+        return lines[0]
+
+    assert "no such file or folder" in error([str(tmp_path / "nowhere"), "-o", str(tmp_path / "out"), "-q"])
     empty = tmp_path / "empty"
     empty.mkdir()
     (empty / "README.md").write_text("x")
-    with pytest.raises(InputError, match="no shape file"):
-        bench.main([str(empty), "-o", str(tmp_path / "out"), "-q"])
-    with pytest.raises(InputError, match="unknown method 'vhacd3'"):
-        bench.main([str(empty), "-o", str(tmp_path / "out"), "--methods", "pointcvx,vhacd3", "-q"])
-    monkeypatch.setitem(bench._PACKAGES, "coacd", "coacd_is_not_installed")
-    with pytest.raises(InputError, match=r"pip install 'pointcvx\[baselines\]'"):
-        bench.main([str(empty), "-o", str(tmp_path / "out"), "--methods", "coacd", "-q"])
+    assert "no shape file" in error([str(empty), "-o", str(tmp_path / "out"), "-q"])
+    assert "unknown method 'vhacd3'" in error([str(empty), "-o", str(tmp_path / "out"),
+                                               "--methods", "pointcvx,vhacd3", "-q"])
+    monkeypatch.setitem(bench.PACKAGES, "coacd", "coacd_is_not_installed")
+    assert "pip install 'pointcvx[baselines]'" in error([str(empty), "-o", str(tmp_path / "out"),
+                                                         "--methods", "coacd", "-q"])
     assert not (tmp_path / "out").exists()
+    # bad usage (a missing -o) is argparse's exit status 2
+    with pytest.raises(SystemExit) as exc:
+        _bench([str(empty), "-q"])
+    assert exc.value.code == 2
 
 
 def test_parser_defaults_and_options():
     args = _args(["a", "b", "-o", "out"])
-    assert args.func is bench.cmd_bench
-    opts = bench.options_from_args(args)
-    assert (args.datasets, args.outdir, args.jobs, args.limit) == (["a", "b"], "out", 1, None)
-    assert (opts.methods, opts.thresholds, opts.match, opts.timeout, opts.features) == (
+    assert args.func is cmd_bench
+    opts = bench_options(args)
+    assert (args.datasets, args.output, args.jobs, args.limit) == (["a", "b"], "out", 1, None)
+    assert (opts.methods, opts.thresholds, opts.match, opts.timeout, opts.decompose.features) == (
         ("pointcvx", "coacd", "vhacd"), (0.1,), True, 600.0, "auto")
-    opts = bench.options_from_args(_args(["a", "-o", "o", "--methods", "PointCVX, vhacdx",
-                                          "--thresholds", "0.05,0.2", "--no-match", "--timeout", "5",
-                                          "--features", "model"]))
-    assert (opts.methods, opts.thresholds, opts.match, opts.timeout, opts.features) == (
+    assert opts == bench.BenchOptions()  # the flags' defaults are the API's
+    opts = bench_options(_args(["a", "--output", "o", "--methods", "PointCVX, vhacdx",
+                                "--thresholds", "0.05,0.2", "--no-match", "--timeout", "5",
+                                "--features", "model"]))
+    assert (opts.methods, opts.thresholds, opts.match, opts.timeout, opts.decompose.features) == (
         ("pointcvx", "vhacdx"), (0.05, 0.2), False, 5.0, "model")
+    # pointcvx's settings by name, as the API takes them
+    opts = bench.BenchOptions.create(methods=("pointcvx",), features="model", n_points=3000, seed=4)
+    assert (opts.decompose.features, opts.load.n_points, opts.seed) == ("model", 3000, 4)
+    assert bench.BenchOptions.from_dict(opts.to_dict()) == opts
 
 
 def test_search_bisects_to_the_closest_count():
@@ -206,9 +227,9 @@ def test_search_bisects_to_the_closest_count():
 
     def fake_run(x: float):  # a synthetic count, falling as the parameter grows
         calls.append(x)
-        return bench._Run("coacd", x, True, hulls=int(round(0.5 / x)))
+        return bench.Run("coacd", x, True, hulls=int(round(0.5 / x)))
 
-    reused = bench._Run("coacd", 0.1, True, hulls=5)
+    reused = bench.Run("coacd", 0.1, True, hulls=5)
     best, tried = bench.search_parameter(fake_run, 0.01, 1.0, 10, 6, reuse=[reused])
     assert best.hulls == 10 and tried[-1] is best
     assert tried[0] is reused and 0.1 not in calls  # the midpoint's run was reused, not rerun
@@ -219,7 +240,7 @@ def test_search_bisects_to_the_closest_count():
     # a failing probe moves the search to coarser settings
     def failing(x: float):
         if x < 0.05:
-            return bench._Run("coacd", x, False, error="timeout after 1 s")
+            return bench.Run("coacd", x, False, error="timeout after 1 s")
         return fake_run(x)
 
     best, tried = bench.search_parameter(failing, 0.01, 1.0, 10, 4)
@@ -230,14 +251,14 @@ def test_rerun_resumes_and_redoes_only_missing_rows(run):
     out = run["out"]
     before = (out / "results.csv").read_text()
     stamp = {p: p.stat().st_mtime_ns for p in (out / "hulls").rglob("*.obj")}
-    report = bench.run_bench([run["ds"]], out, bench.options_from_args(_args(run["argv"])))
+    report = bench.run_bench([run["ds"]], out, bench_options(_args(run["argv"])))
     assert report.new_rows == 0
     assert (out / "results.csv").read_text() == before
     assert {p: p.stat().st_mtime_ns for p in (out / "hulls").rglob("*.obj")} == stamp
     # drop one row: only that one runs again
     rows = [r for r in run["rows"] if (r["method"], r["setting"]) != ("vhacdx", "fixed")]
     bench.write_results(out / "results.csv", rows)
-    report = bench.run_bench([run["ds"]], out, bench.options_from_args(_args(run["argv"])))
+    report = bench.run_bench([run["ds"]], out, bench_options(_args(run["argv"])))
     assert report.new_rows == 1
     again = _rows(out)
     assert len(again) == len(run["rows"])
@@ -251,14 +272,14 @@ import multiprocessing, os, sys, time
 from pathlib import Path
 
 def child(flag):
-    from pointcvx.bench import BenchStopped, _stop_if_orphaned
-    _stop_if_orphaned()  # parent alive: nothing happens
+    from pointcvx.apps.common import Orphaned, stop_if_orphaned
+    stop_if_orphaned()  # parent alive: nothing happens
     Path(flag).write_text("started")
     for _ in range(200):
         time.sleep(0.05)
         try:
-            _stop_if_orphaned()
-        except BenchStopped:
+            stop_if_orphaned()
+        except Orphaned:
             Path(flag).write_text("stopped")
             return
     Path(flag).write_text("ran on")
@@ -295,12 +316,12 @@ def test_worker_warms_imports_and_model_before_the_timed_call():
 
     code = (
         "import sys\n"
-        "from pointcvx import _bench_worker as w\n"
-        "from pointcvx.pipeline import _cached_model\n"
-        "w._warm_pointcvx({'features': sys.argv[1], 'model': None})\n"
+        "from pointcvx.apps.bench import worker as w\n"
+        "from pointcvx.model import weights\n"
+        "w.warm_pointcvx({'features': sys.argv[1], 'model': None})\n"
         "missing = [m for m in ('open3d', 'sklearn.cluster', 'skimage.measure', 'trimesh', 'torch')\n"
         "           if m not in sys.modules]\n"
-        "print(missing, _cached_model.cache_info().currsize)\n"
+        "print(missing, weights._cached.cache_info().currsize)\n"
     )
     for features in ("model", "auto"):  # "auto" uses the model on splats: load it once, before
         out = subprocess.run([sys.executable, "-c", code, features], capture_output=True, text=True,

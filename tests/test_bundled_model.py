@@ -9,9 +9,11 @@ from shapes import torus, u_block
 
 import pointcvx
 from pointcvx.features import sample_triplets
-from pointcvx.model import FeatureNet, ModelConfig, ModelFeatureSource, count_parameters, load_model
+from pointcvx.model.config import ModelConfig
+from pointcvx.model.network import FeatureNet, count_parameters
+from pointcvx.model.source import ModelFeatureSource, load_model
 from pointcvx.model.train import load_checkpoint, seed_everything
-from pointcvx.pipeline import BUNDLED_MODEL, bundled_model_path
+from pointcvx.model.weights import BUNDLED_MODEL, bundled_model_path
 from pointcvx.solid import Solid
 
 
@@ -29,7 +31,7 @@ def pair_accuracy(source, triplets) -> float:
 def shapes():
     out = {}
     for name, mesh in (("u_block", u_block()), ("torus", torus())):
-        cloud = pointcvx.OrientedCloud.from_trimesh(mesh, n_points=8000, seed=0).normalized()
+        cloud = pointcvx.io.from_trimesh(mesh, n_points=8000, seed=0).normalized()
         solid = Solid(np.asarray(cloud.mesh.vertices), np.asarray(cloud.mesh.faces))
         out[name] = (cloud, sample_triplets(solid, cloud.points, cloud.normals, n_anchors=512,
                                             n_candidates=256, n_hard=32, n_uniform=32, seed=0))

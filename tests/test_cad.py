@@ -174,7 +174,8 @@ def test_a_crash_in_the_child_is_an_input_error(sample, monkeypatch):
 def test_an_interrupted_tessellation_kills_its_child(sample, tmp_path, monkeypatch):
     import os
 
-    from pointcvx.batch import AssetTimeout, _Guard
+    from pointcvx.apps.batch import AssetTimeout
+    from pointcvx.apps.batch import Guard as _Guard
     from pointcvx.io import cad
 
     pid_file = tmp_path / "child.pid"

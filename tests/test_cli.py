@@ -9,6 +9,7 @@ import sys
 
 import numpy as np
 import pytest
+from bad_inputs import CASES, bad_inputs
 
 from conftest import DATA, ROOT
 from pointcvx.cli import EXIT_INPUT, EXIT_USAGE, main
@@ -57,49 +58,9 @@ def test_refuses_to_overwrite_its_input(tmp_path, capsys):
     assert "input" in capsys.readouterr().err and src.read_bytes() == before
 
 
-def _bad_inputs(tmp: str) -> dict[str, tuple[str, str]]:
-    """name -> (path, expected message fragment), written into ``tmp``."""
-    from pathlib import Path
-
-    tmp = Path(tmp)
-    cases = {}
-    cases["missing"] = (str(tmp / "nope.ply"), "no such file")
-    (tmp / "empty.obj").write_bytes(b"")
-    cases["empty"] = (str(tmp / "empty.obj"), "empty")
-    data = (ROOT / "io" / "mug_splat.ply").read_bytes()
-    (tmp / "truncated.ply").write_bytes(data[: len(data) // 2])
-    cases["truncated ply"] = (str(tmp / "truncated.ply"), "truncated or corrupted PLY")
-    mesh_ply = (DATA / "dev/objects/ant.ply").read_bytes()
-    (tmp / "truncated_mesh.ply").write_bytes(mesh_ply[: len(mesh_ply) * 2 // 3])
-    cases["truncated mesh ply"] = (str(tmp / "truncated_mesh.ply"), "PLY")
-    (tmp / "corrupt.ply").write_bytes(b"ply\nformat binary_little_endian 1.0\nelement vertex 10\n")
-    cases["corrupted ply"] = (str(tmp / "corrupt.ply"), "header never ends")
-    (tmp / "novert.ply").write_bytes(
-        b"ply\nformat ascii 1.0\nelement vertex 0\nproperty float x\nproperty float y\n"
-        b"property float z\nend_header\n")
-    cases["no vertices"] = (str(tmp / "novert.ply"), "no vertices")
-    (tmp / "nan.xyz").write_text("0 0 0\n1 0 0\n0 1 0\nnan 0 1\n0 0 1\n")
-    cases["nan"] = (str(tmp / "nan.xyz"), "NaN")
-    (tmp / "inf.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 inf 0\nv 0 0 1\nf 1 2 3\nf 1 3 4\n")
-    cases["inf"] = (str(tmp / "inf.obj"), "infinite")
-    (tmp / "same.xyz").write_text("1 2 3\n" * 20)
-    cases["identical"] = (str(tmp / "same.xyz"), "identical")
-    (tmp / "line.xyz").write_text("".join(f"{t} {2 * t} {3 * t}\n" for t in range(20)))
-    cases["collinear"] = (str(tmp / "line.xyz"), "collinear")
-    (tmp / "noise.bin").write_bytes(np.random.default_rng(0).bytes(5000))
-    cases["unknown"] = (str(tmp / "noise.bin"), "unknown format")
-    (tmp / "flat.obj").write_text("v 0 0 0\nv 1 0 0\nv 2 0 0\nv 3 0 0\nf 1 2 3\nf 2 3 4\n")
-    cases["degenerate faces"] = (str(tmp / "flat.obj"), "degenerate")
-    return cases
-
-
-CASES = ["missing", "empty", "truncated ply", "truncated mesh ply", "corrupted ply", "no vertices",
-         "nan", "inf", "identical", "collinear", "unknown", "degenerate faces"]
-
-
 @pytest.mark.parametrize("case", CASES)
 def test_bad_input_gives_one_line_error(tmp_path, capsys, case):
-    path, fragment = _bad_inputs(str(tmp_path))[case]
+    path, fragment = bad_inputs(str(tmp_path))[case]
     assert main(["info", path]) == EXIT_INPUT
     err = capsys.readouterr().err.strip()
     assert err.startswith("pointcvx: error:") and "\n" not in err
@@ -110,7 +71,7 @@ def test_bad_input_gives_one_line_error(tmp_path, capsys, case):
 def test_bad_input_api_raises_typed_error(tmp_path, case):
     import pointcvx
 
-    path, fragment = _bad_inputs(str(tmp_path))[case]
+    path, fragment = bad_inputs(str(tmp_path))[case]
     with pytest.raises(pointcvx.PointcvxError) as info:
         pointcvx.load(path)
     assert isinstance(info.value, pointcvx.InputError)
@@ -118,7 +79,7 @@ def test_bad_input_api_raises_typed_error(tmp_path, case):
 
 
 def test_bad_inputs_in_a_real_process_never_trace_back(tmp_path):
-    cases = _bad_inputs(str(tmp_path))
+    cases = bad_inputs(str(tmp_path))
     for name in ("truncated ply", "unknown", "nan", "collinear"):
         res = run_cli("info", cases[name][0])
         assert res.returncode == EXIT_INPUT, (name, res.stderr)
@@ -143,7 +104,7 @@ def test_usage_errors_and_help():
     res = run_cli("info", str(MUG), "--points", "many")
     assert res.returncode == EXIT_USAGE
     res = run_cli("info", str(MUG), "--min-opacity", "2")
-    assert res.returncode == EXIT_INPUT and "min_opacity" in res.stderr
+    assert res.returncode == EXIT_USAGE and "min_opacity must be in [0, 1), got 2.0" in res.stderr
     res = run_cli("info", "--help")
     assert res.returncode == 0
     for flag in ("--output", "--points", "--seed", "--min-opacity", "--floater-ratio",

@@ -8,6 +8,7 @@ import pytest
 import trimesh
 
 from pointcvx import InputError, Normalization, OrientedCloud
+from pointcvx.io import from_numpy, from_open3d, from_trimesh, save_cloud
 
 
 def _sphere(n=2000, seed=0):
@@ -62,10 +63,10 @@ def test_bad_arrays_raise_input_error(points, message):
 
 def test_degenerate_arrays_raise_input_error():
     with pytest.raises(InputError, match="identical"):
-        OrientedCloud.from_arrays(np.ones((10, 3)), np.ones((10, 3)))
+        from_numpy(np.ones((10, 3)), np.ones((10, 3)))
     line = np.linspace(0, 1, 50)[:, None] * [1.0, 2.0, 3.0]
     with pytest.raises(InputError, match="collinear"):
-        OrientedCloud.from_arrays(line, np.ones((50, 3)))
+        from_numpy(line, np.ones((50, 3)))
 
 
 def test_zero_normals_rejected():
@@ -82,7 +83,7 @@ def test_open3d_and_trimesh_conversions():
     pc = cloud.to_open3d()
     np.testing.assert_allclose(np.asarray(pc.points), pts)
     np.testing.assert_allclose(np.asarray(pc.normals), nrm)
-    back = OrientedCloud.from_open3d(pc)
+    back = from_open3d(pc)
     np.testing.assert_allclose(back.points, pts)
     assert (np.einsum("ij,ij->i", back.normals, nrm) > 0.99).mean() > 0.99
     tpc = cloud.to_trimesh()
@@ -93,14 +94,14 @@ def test_open3d_and_trimesh_conversions():
 
 def test_from_open3d_mesh_and_trimesh_keep_mesh_and_faces():
     box = o3d.geometry.TriangleMesh.create_box(2.0, 1.0, 1.0)
-    cloud = OrientedCloud.from_open3d(box, n_points=3000, seed=1)
+    cloud = from_open3d(box, n_points=3000, seed=1)
     assert cloud.mesh is not None and cloud.face_index.shape == (3000,)
     # outward: normals point away from the box centre
     c = np.array([1.0, 0.5, 0.5])
     assert (np.einsum("ij,ij->i", cloud.normals, cloud.points - c) > 0).all()
     m = cloud.to_open3d_mesh()
     assert len(m.triangles) == 12
-    cloud2 = OrientedCloud.from_trimesh(trimesh.creation.icosphere(), n_points=1000)
+    cloud2 = from_trimesh(trimesh.creation.icosphere(), n_points=1000)
     np.testing.assert_allclose(np.linalg.norm(cloud2.points, axis=1), 1.0, atol=0.05)
 
 
@@ -108,7 +109,7 @@ def test_save_ply_round_trip(tmp_path):
     from plyfile import PlyData
 
     pts, nrm = _sphere(300)
-    OrientedCloud(pts, nrm).save_ply(str(tmp_path / "c.ply"))
+    save_cloud(OrientedCloud(pts, nrm), tmp_path / "c.ply")
     v = PlyData.read(str(tmp_path / "c.ply"))["vertex"]
     np.testing.assert_allclose(np.c_[v["x"], v["y"], v["z"]], pts, atol=1e-5)
     np.testing.assert_allclose(np.c_[v["nx"], v["ny"], v["nz"]], nrm, atol=1e-6)

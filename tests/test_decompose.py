@@ -9,14 +9,15 @@ import pickle
 import numpy as np
 import pytest
 import trimesh
+from bad_inputs import CASES as BAD_CASES
+from bad_inputs import bad_inputs
 from shapes import l_block, torus, two_boxes, u_block
-from test_cli import CASES as BAD_CASES
-from test_cli import _bad_inputs as bad_inputs
 
 import pointcvx
 from conftest import DATA, ROOT, dev_files
 from pointcvx.cli import EXIT_INPUT, main
-from pointcvx.metrics import evaluate, hull_contains
+from pointcvx.decomposition.hull import convex_hull, hull_contains
+from pointcvx.evaluate import evaluate, load_hulls
 
 FAST = dict(n_points=6000, seed=0)
 
@@ -65,8 +66,8 @@ def test_every_point_is_inside_its_hull(l_result):
     pts = l_result.cloud.normalization.inverse(l_result.cloud.points)
     for i, h in enumerate(l_result.hulls):
         mine = pts[l_result.labels == i]
-        assert len(mine) == h.points
-        hull = pointcvx.metrics.convex_hull(h.vertices)
+        assert len(mine) == h.n_points
+        hull = convex_hull(h.vertices)
         assert hull_contains(hull, mine, tol=1e-7).all()
 
 
@@ -138,7 +139,7 @@ def test_result_exports_and_conversions(l_result, tmp_path):
     assert l_result.export(out) == [out]
     text = out.read_text()
     assert text.count("\no hull_") == len(l_result)
-    loaded = pointcvx.metrics.load_hulls(out)
+    loaded = load_hulls(out)
     assert len(loaded) == len(l_result)
     with pytest.raises(pointcvx.OutputError):
         l_result.export(out)
@@ -256,9 +257,9 @@ def test_model_features_are_refused_clearly(tmp_path, capsys, monkeypatch):
     assert main([*args, "--model", str(tmp_path / "missing.pt")]) == EXIT_INPUT and not out.exists()
     assert "no such model checkpoint" in capsys.readouterr().err
     # a build without the bundled weights (e.g. a source tree without pointcvx/data) says so
-    import pointcvx.pipeline
+    import pointcvx.model.weights
 
-    monkeypatch.setattr(pointcvx.pipeline, "BUNDLED_MODEL", tmp_path / "not_shipped.pt")
+    monkeypatch.setattr(pointcvx.model.weights, "BUNDLED_MODEL", tmp_path / "not_shipped.pt")
     assert main(args) == EXIT_INPUT and not out.exists()
     assert "no feed-forward model" in capsys.readouterr().err
 
@@ -283,12 +284,12 @@ def test_auto_features_use_the_model_on_splats_and_optimisation_elsewhere(tmp_pa
     assert arrays.params["features"] == "optimize"
     assert resolve_features("optimize", "splat") == "optimize"
     assert resolve_features("model", "mesh") == "model"
-    with pytest.raises(pointcvx.InputError, match="unknown feature method"):
+    with pytest.raises(pointcvx.InputError, match="unknown features"):
         resolve_features("best", "splat")
     # a build without weights falls back to optimisation, unless a checkpoint is given
-    from pointcvx import pipeline
+    from pointcvx.model import weights
 
-    monkeypatch.setattr(pipeline, "BUNDLED_MODEL", tmp_path / "not_shipped.pt")
+    monkeypatch.setattr(weights, "BUNDLED_MODEL", tmp_path / "not_shipped.pt")
     assert resolve_features("auto", "splat") == "optimize"
     assert resolve_features("auto", "splat", model=tmp_path / "mine.pt") == "model"
 
@@ -335,7 +336,7 @@ def test_sub_surface_points_can_be_left_out_of_the_concavity():
     assert layered.max_concavity < 0.05
     plain = pointcvx.decompose(cloud, threshold=0.05, max_hulls=4, features="optimize", seed=0)
     assert "subsurface_points" not in plain.cloud.info and len(plain) > 1
-    with pytest.raises(pointcvx.InputError, match="subsurface depth must be positive"):
+    with pytest.raises(pointcvx.InputError, match="subsurface must be positive"):
         pointcvx.decompose(cloud, subsurface=-0.05)
 
 

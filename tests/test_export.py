@@ -14,9 +14,10 @@ import trimesh
 
 import pointcvx
 from pointcvx.cli import EXIT_INPUT, EXIT_USAGE, main
+from pointcvx.decomposition.hull import convex_hull
+from pointcvx.decomposition.limits import TARGETS, hull_limits, outside_distance, simplify_hull
+from pointcvx.evaluate import load_hulls
 from pointcvx.export import FORMATS
-from pointcvx.metrics import convex_hull, load_hulls
-from pointcvx.simplify import TARGETS, hull_limits, outside_distance, simplify_hull
 
 FAST = dict(features="model", n_points=3000, seed=0)
 CAPS = {  # target -> (most vertices, most triangles) per hull
@@ -144,7 +145,7 @@ def test_decompose_applies_engine_caps_and_refuses_bad_ones_before_work(source, 
     assert max(len(h.vertices) for h in capped.hulls) <= 40
     assert capped.params["hull_limits"]["max_vertices"] == 40
     assert capped.added_volume > 0
-    with pytest.raises(pointcvx.InputError, match="unknown engine target"):
+    with pytest.raises(pointcvx.InputError, match="unknown target 'havok'"):
         pointcvx.decompose(source / "missing.obj", target="havok")  # refused before loading
 
 
@@ -314,8 +315,8 @@ def test_cli_target_format_and_refusals(source, tmp_path, capsys, monkeypatch):
     for extra, code, fragment in [
         (["--format", "mjcf"], EXIT_INPUT, "exists"),
         (["--format", "ply"], EXIT_USAGE, "invalid choice"),
-        (["--target", "havok"], EXIT_USAGE, "invalid choice"),
-        (["--max-hull-vertices", "2"], EXIT_INPUT, "at least 4"),
+        (["--target", "havok"], EXIT_USAGE, "unknown target 'havok'"),
+        (["--max-hull-vertices", "2"], EXIT_USAGE, "at least 4"),
         (["-o", "x.obj", "--format", "urdf"], EXIT_INPUT, "does not match"),
         (["-o", "x.glb", "--per-hull"], EXIT_INPUT, "--per-hull"),
         (["-o", str(source), "--overwrite"], EXIT_INPUT, "input"),

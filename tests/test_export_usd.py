@@ -13,7 +13,7 @@ import trimesh
 
 import pointcvx
 from pointcvx.cli import main
-from pointcvx.export import _visual_mesh, format_for, mass_properties, usd_identifier, usda_text
+from pointcvx.export import format_for, mass_properties, usd_identifier, usda_text, visual_mesh
 
 COLLIDER_APIS = ["PhysicsCollisionAPI", "PhysicsMeshCollisionAPI"]
 BODY_APIS = ["PhysicsRigidBodyAPI", "PhysicsMassAPI"]
@@ -132,7 +132,7 @@ def test_usda_text_holds_every_hull_exactly(result, source, tmp_path):
     visual = prims[f"/{name}/visual"]
     assert visual["type"] == "Mesh" and api_schemas(visual) == [] and token(visual, "purpose") is None
     points, counts, indices, extent = mesh_arrays(visual)
-    mesh_v, mesh_f = _visual_mesh(result)
+    mesh_v, mesh_f = visual_mesh(result)
     np.testing.assert_allclose(points, mesh_v, rtol=1e-12, atol=0)
     assert (counts == 3).all() and np.array_equal(indices, mesh_f)
     original = trimesh.load(source, force="mesh")
@@ -205,7 +205,7 @@ def test_openusd_reads_the_rigid_body_and_its_colliders(result, tmp_path):
         visual = stage.GetPrimAtPath("/torus/visual")
         assert visual.IsA(UsdGeom.Mesh) and not visual.HasAPI(UsdPhysics.CollisionAPI)
         assert UsdGeom.Imageable(visual).ComputePurpose() == UsdGeom.Tokens.default_
-        assert len(UsdGeom.Mesh(visual).GetFaceVertexCountsAttr().Get()) == len(_visual_mesh(result)[1])
+        assert len(UsdGeom.Mesh(visual).GetFaceVertexCountsAttr().Get()) == len(visual_mesh(result)[1])
 
         if _has_validation():
             from pxr import UsdValidation
@@ -250,8 +250,8 @@ def test_usd_colliders_thicken_flat_hulls_as_the_robot_files_do(result, tmp_path
     contains it, the same collider URDF and MJCF get."""
     from dataclasses import replace
 
-    from pointcvx.metrics import convex_hull
-    from pointcvx.simplify import outside_distance
+    from pointcvx.decomposition.hull import convex_hull
+    from pointcvx.decomposition.limits import outside_distance
 
     ang = np.linspace(0, 2 * np.pi, 12, endpoint=False)
     flat = convex_hull(np.stack([np.cos(ang), np.sin(ang), 0 * ang], axis=1) * 0.3 + [0, 0, 2.0])

@@ -8,21 +8,18 @@ import numpy as np
 import pytest
 import trimesh
 
-from pointcvx import metrics
-from pointcvx.errors import InputError
-from pointcvx.io.mesh import sample_surface
-from pointcvx.metrics import (
-    chamfer_distance,
+from pointcvx.decomposition.concavity import chamfer_distance, part_concavity
+from pointcvx.decomposition.hull import (
     convex_hull,
     distance_to_hull_boundary,
-    evaluate,
-    evaluate_files,
     hull_contains,
-    load_hulls,
-    part_concavity,
+    max_inside_depth,
     sample_hull_interior,
     sample_hull_surface,
 )
+from pointcvx.errors import InputError
+from pointcvx.evaluate import evaluate, evaluate_files, evaluate_points, load_hulls, union_surface_samples
+from pointcvx.io.mesh import sample_surface
 from pointcvx.solid import Solid
 
 K = 0.3
@@ -177,10 +174,10 @@ def test_fast_depth_equals_full_product():
     pts = sample_surface(L, 30000, seed=2)[0]
     hull = convex_hull(pts)
     full = float(distance_to_hull_boundary(hull, pts).max())
-    assert metrics._max_inside_depth(hull, pts) == pytest.approx(full, abs=1e-12)
+    assert max_inside_depth(hull, pts) == pytest.approx(full, abs=1e-12)
     sub = pts[rng.choice(len(pts), 3000, replace=False)]
     sub_hull = convex_hull(sub)
-    assert metrics._max_inside_depth(sub_hull, sub, sub_hull.index) == pytest.approx(
+    assert max_inside_depth(sub_hull, sub, sub_hull.index) == pytest.approx(
         float(distance_to_hull_boundary(sub_hull, sub).max()), abs=1e-12
     )
 
@@ -247,13 +244,13 @@ def test_coverage_of_hulls_containing_the_shape():
 def test_union_samples_skip_interfaces_and_duplicates():
     rng = np.random.default_rng(0)
     abut = [convex_hull(box([0, 0, 0], [1, 1, 1]).vertices), convex_hull(box([1, 0, 0], [2, 1, 1]).vertices)]
-    s = metrics._union_surface_samples(abut, 20000, rng)
+    s = union_surface_samples(abut, 20000, rng)
     assert len(s) == 20000 and not np.any(np.abs(s[:, 0] - 1.0) < 1e-9)
     overlap = [
         convex_hull(box([0, 0, 0], [2, 1, 2]).vertices),
         convex_hull(box([0, 0, 0], [1, 2, 2]).vertices),
     ]
-    s = metrics._union_surface_samples(overlap, 40000, rng)
+    s = union_surface_samples(overlap, 40000, rng)
     assert np.mean(np.abs(s[:, 2]) < 1e-9) == pytest.approx(3 / 22, abs=0.01)  # L's area is 22
 
 
@@ -270,7 +267,9 @@ def test_evaluate_falls_back_to_monte_carlo(monkeypatch):
     def refuse(*args):
         raise RuntimeError("manifold3d rejects the mesh (NotManifold)")
 
-    monkeypatch.setattr(metrics, "_pieces_manifold", refuse)
+    import pointcvx.evaluate
+
+    monkeypatch.setattr(pointcvx.evaluate, "_pieces_manifold", refuse)
     L = l_block()
     r = evaluate(L, [L.vertices], n_samples=20000)
     assert r["pieces"].startswith("monte-carlo")
@@ -334,14 +333,14 @@ def test_evaluate_repairs_an_open_mesh():
 
 def test_evaluate_points_on_a_sphere_cloud():
     pts = sample_surface(trimesh.creation.icosphere(4), 20000, seed=0)[0] * 3.0 + 5.0  # any units
-    own = metrics.evaluate_points(pts, [pts])
+    own = evaluate_points(pts, [pts])
     assert own["hulls"] == 1 and own["coverage"] == 1.0 and own["outside_max"] == 0.0
     assert own["reconstruction"] < 0.02  # two 20k samplings of one sphere: spacing-limited
     # the upper half only: every lower point is outside, at most the sphere's diameter away
-    half = metrics.evaluate_points(pts, [pts[pts[:, 2] > 5.0]])
+    half = evaluate_points(pts, [pts[pts[:, 2] > 5.0]])
     assert half["coverage"] == pytest.approx(0.5, abs=0.02)
     assert 0.9 < half["outside_max"] < 1.01  # unit radius after normalising to [-1, 1]^3
     assert half["reconstruction"] > 5 * own["reconstruction"]
-    assert metrics.evaluate_points(pts, [pts], seed=3) == metrics.evaluate_points(pts, [pts], seed=3)
+    assert evaluate_points(pts, [pts], seed=3) == evaluate_points(pts, [pts], seed=3)
     with pytest.raises(InputError):
-        metrics.evaluate_points(pts, [])
+        evaluate_points(pts, [])

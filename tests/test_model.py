@@ -13,20 +13,11 @@ import trimesh
 from scipy.spatial import cKDTree
 
 from pointcvx.features import FeatureSource, sample_triplets
-from pointcvx.model import (
+from pointcvx.model.config import ModelConfig
+from pointcvx.model.network import (
     FeatureNet,
-    ModelConfig,
-    ModelFeatureSource,
     build_model,
     count_parameters,
-    load_checkpoint,
-    load_model,
-    save_checkpoint,
-    seed_everything,
-    train,
-    training_step,
-)
-from pointcvx.model.network import (
     cross_plane_context,
     devoxelize,
     sample_planes,
@@ -34,14 +25,20 @@ from pointcvx.model.network import (
     scatter_planes,
     voxelize,
 )
+from pointcvx.model.source import ModelFeatureSource, load_model
 from pointcvx.model.train import (
     batch_indices,
     batch_items,
     collate,
     export_weights,
+    load_checkpoint,
     random_rotation,
     read_log,
     rotate_item,
+    save_checkpoint,
+    seed_everything,
+    train,
+    training_step,
 )
 from pointcvx.solid import Solid
 

@@ -8,13 +8,13 @@ import pytest
 from shapes import l_block, torus
 
 import pointcvx
-from pointcvx.pipeline import as_cloud
-from pointcvx.recursive import Decomposer
-from pointcvx.solid import _VOTE_DIRS, Solid
+from pointcvx.decomposition.tree import Decomposer
+from pointcvx.io import as_cloud
+from pointcvx.solid import VOTE_DIRECTIONS, Solid
 
 
 def _majority_of_three(solid: Solid, points: np.ndarray) -> np.ndarray:
-    votes = sum(solid._odd_hits(points, d).astype(int) for d in _VOTE_DIRS)
+    votes = sum(solid._odd_hits(points, d).astype(int) for d in VOTE_DIRECTIONS)
     return votes >= 2
 
 
@@ -52,7 +52,7 @@ def test_inside_vote_matches_three_ray_majority(make, depth):
 @pytest.fixture(scope="module")
 def l_decomposer():
     cloud = as_cloud(l_block(), n_points=6000, seed=0)
-    from pointcvx.watertight import solid_for
+    from pointcvx.solid import solid_for
 
     solid = solid_for(cloud)
     feats = np.zeros((len(cloud), 1))  # position-only splits: enough for an L
@@ -76,7 +76,7 @@ def test_coarse_concavity_tracks_the_full_measure(l_decomposer):
 
 def test_duplicate_proposals_are_scored_once():
     cloud = as_cloud(l_block(), n_points=4000, seed=0)
-    from pointcvx.watertight import solid_for
+    from pointcvx.solid import solid_for
 
     solid = solid_for(cloud)
     feats = np.zeros((len(cloud), 1))
@@ -133,7 +133,7 @@ def test_merge_joins_an_over_split_shape_and_reports_full_concavities():
 
 
 def test_split_score_ranks_concavity_first_and_breaks_convex_ties_by_volume():
-    from pointcvx.recursive import split_score
+    from pointcvx.decomposition.tree import split_score
 
     # The more concave child decides, then the sum; hull volume never outweighs concavity.
     assert split_score((0.05, 9.0), (0.02, 9.0)) < split_score((0.06, 1.0), (0.0, 1.0))

@@ -21,7 +21,8 @@ from conftest import DATA
 from pointcvx import InputError, MissingExtraError, OrientedCloud
 from pointcvx.io import LoadOptions, finalize
 from pointcvx.io.ply import write_cloud_ply
-from pointcvx.io.scan import cloud_from_points, face_one_viewer, load_scan_file, read_xyz
+from pointcvx.io.pointfiles import read_xyz
+from pointcvx.io.scan import cloud_from_points, face_one_viewer, load_scan_file
 
 DRAGON = DATA / "dev" / "scans" / "dragon_50k.ply"
 
@@ -349,7 +350,7 @@ def test_las_without_laspy_names_the_extra(tmp_path, monkeypatch):
 # ------------------------------------------------------------------------------- arrays and options
 def test_from_arrays_and_options(dragon):
     v = np.asarray(dragon.vertices)
-    cloud = OrientedCloud.from_arrays(v, outlier_neighbors=0, normal_neighbors=16)
+    cloud = pointcvx.io.from_numpy(v, outlier_neighbors=0, normal_neighbors=16)
     assert cloud.info["normals"] == "estimated (PCA k=16) + oriented"
     assert len(cloud) == len(v) and cloud.info["dropped_outliers"] == 0
     assert truth_agreement(cloud, dragon) > 0.96  # measured 0.978

@@ -8,7 +8,8 @@ import json
 import pytest
 
 from conftest import ROOT
-from pointcvx.cli import EXIT_INPUT, main
+from pointcvx.cli import main
+from pointcvx.errors import EXIT_INPUT, EXIT_USAGE
 from pointcvx.model.train import read_log
 
 
@@ -48,20 +49,22 @@ def test_prepare_train_resume_and_decompose_with_the_model(tiny_data, tmp_path, 
     assert 1 <= summary["hulls"] <= 12 and out.exists()
     # in a loop over shapes the network is loaded once, and the results are the same
     import pointcvx
-    from pointcvx.pipeline import _cached_model
+    from pointcvx.model.weights import cache_info
 
     opts = {"features": "model", "model": str(run / "last.pt"), "n_points": 4000, "threshold": 0.2,
             "max_hulls": 12}
     first = pointcvx.decompose(ROOT / "io" / "mug.obj", **opts)
-    before = _cached_model.cache_info()
+    before = cache_info()
     again = pointcvx.decompose(ROOT / "io" / "mug.obj", **opts)
-    after = _cached_model.cache_info()
+    after = cache_info()
     assert after.misses == before.misses and after.hits > before.hits  # not read again
     assert [h.vertices.tolist() for h in first.hulls] == [h.vertices.tolist() for h in again.hulls]
     two = pointcvx.decompose(ROOT / "io" / "mug.obj", views=2, **opts)
     assert two.params["views"] == 2 and 1 <= len(two.hulls) <= 12
-    assert main([*args, "--overwrite", "--views", "0"]) == EXIT_INPUT
-    assert "views must be a positive integer" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as bad:  # a bad value is bad usage
+        main([*args, "--overwrite", "--views", "0"])
+    assert bad.value.code == EXIT_USAGE
+    assert "views must be at least 1, got 0" in capsys.readouterr().err
 
     # a new run warm-started from those weights: fresh step count, the same weights at step 0
     import torch

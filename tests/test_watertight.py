@@ -9,8 +9,8 @@ import trimesh
 import pointcvx
 from conftest import DATA, SAMPLES
 from pointcvx.errors import InputError
-from pointcvx.solid import Solid
-from pointcvx.watertight import (
+from pointcvx.solid import (
+    Solid,
     closed_mesh_solid,
     solid_for,
     solid_from_cloud,
@@ -271,7 +271,7 @@ def test_winding_number_of_a_cloud_is_one_inside_and_zero_outside():
     inside (measured 1.045: the neighbour-distance areas run a little high) and 0 outside a
     few cells from the surface; with the lower half missing, the centre reads 0.5 and the
     upper inside more than 0.75; flipped normals negate it."""
-    from pointcvx.watertight import dipole_cells, winding_number
+    from pointcvx.solid import dipole_cells, winding_number
 
     sphere = trimesh.creation.icosphere(4)
     points, normals = surface_samples(sphere, 20000)
@@ -348,13 +348,13 @@ def test_closed_mesh_solid_nested_and_intersecting():
 
 def test_solid_for_routes():
     box = trimesh.creation.box((1.0, 1.0, 1.0))
-    closed = pointcvx.OrientedCloud.from_trimesh(box, n_points=2000)
+    closed = pointcvx.io.from_trimesh(box, n_points=2000)
     solid = solid_for(closed, cache=False)
     assert np.array_equal(solid.vertices, closed.mesh.vertices)  # the mesh itself
     assert solid.volume == pytest.approx(1.0)
 
     holes, true_volume = sphere_with_holes(0.1)
-    cloud = pointcvx.OrientedCloud.from_trimesh(holes, n_points=2000)
+    cloud = pointcvx.io.from_trimesh(holes, n_points=2000)
     solid = solid_for(cloud, resolution=64, cache=False)
     assert solid.volume == pytest.approx(true_volume, rel=0.05)
 

@@ -90,7 +90,7 @@ def run_one(manifest: Path, out: Path, engine: str, jobs: int, features: str, ex
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("-o", "--out", required=True, help="output folder")
+    parser.add_argument("-o", "--output", required=True, help="output folder")
     parser.add_argument("--data", default=str(DATA), help="the dev/ folder of the shared data")
     parser.add_argument("--engines", default="local,ray", help="comma-separated (default local,ray)")
     parser.add_argument("--jobs", default="1,2", help="worker counts (default 1,2)")
@@ -99,7 +99,7 @@ def main(argv: list[str] | None = None) -> int:
                         help="use every K-th shape of SHAPES only (all categories still in; default 1)")
     parser.add_argument("extra", nargs="*", help="more `pointcvx batch` arguments (after --)")
     args = parser.parse_args(argv)
-    out = Path(args.out)
+    out = Path(args.output)
     out.mkdir(parents=True, exist_ok=True)
     data = Path(args.data)
     shapes = SHAPES[::args.every]

@@ -6,10 +6,10 @@
 
 Each shape runs in its own worker process (``--jobs`` at a time). For each shape: the time of
 ``pointcvx.decompose`` (features + splitting + merge + hulls) and the metrics of
-``pointcvx.metrics.evaluate`` (hull count, concavity, Chamfer reconstruction, volume IoU,
+``pointcvx.evaluate.evaluate`` (hull count, concavity, Chamfer reconstruction, volume IoU,
 coverage) on the shape normalised to [-1, 1]^3. Every format pointcvx reads is taken: meshes
 and CAD parts are scored against their surface; splats and point clouds, which have no closed
-surface, with ``pointcvx.metrics.evaluate_points`` (reconstruction and coverage against the
+surface, with ``pointcvx.evaluate.evaluate_points`` (reconstruction and coverage against the
 loaded points; concavity is then the decomposer's own estimate, ``internal_max``), unless
 ``--truth DIR`` holds the true mesh of each input (same stem; ``tools/synthetic_splats.py``):
 then every input is scored against its true mesh. Writes one CSV row per shape and prints a
@@ -41,8 +41,8 @@ def run_one(path: str, opts: dict, name: str | None = None, truth: str | None = 
 
     torch.set_num_threads(1)
     import pointcvx
+    from pointcvx.evaluate import evaluate, evaluate_points
     from pointcvx.io.mesh import read_mesh
-    from pointcvx.metrics import evaluate, evaluate_points
 
     row = {"shape": name or Path(path).stem}
     try:

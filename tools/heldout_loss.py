@@ -16,7 +16,7 @@ import argparse
 import numpy as np
 import torch
 
-from pointcvx.model import load_model
+from pointcvx.model.source import load_model
 from pointcvx.model.train import collate, compute_loss
 from pointcvx.training.data import TripletDataset
 

@@ -46,11 +46,11 @@ def render(path: str, out: Path, *, features: str, model: str | None, threshold:
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
     import pointcvx
-    from pointcvx.metrics import convex_hull
-    from pointcvx.pipeline import as_cloud, compute_features
+    from pointcvx.decomposition.hull import convex_hull
+    from pointcvx.model.weights import load_cached_model
 
     if features == "model":  # load the network first: time a loaded model, as in a loop over shapes
-        compute_features(as_cloud(path, seed=seed), None, method="model", model=model, seed=seed)
+        load_cached_model(model)
     result = pointcvx.decompose(path, features=features, model=model, threshold=threshold, seed=seed,
                                 subsurface=subsurface)
     t_feat = result.timings["features"]
@@ -90,7 +90,7 @@ def render(path: str, out: Path, *, features: str, model: str | None, threshold:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("inputs", nargs="+")
-    ap.add_argument("-o", "--outdir", required=True)
+    ap.add_argument("-o", "--output", required=True, help="output folder")
     ap.add_argument("--features", default="model", choices=["model", "optimize"])
     ap.add_argument("--model", default=None, help="checkpoint (default: the bundled model)")
     ap.add_argument("--threshold", type=float, default=0.1)
@@ -103,7 +103,7 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     for path in args.inputs:
         tag = "_subsurface" if args.subsurface is not None else ""
-        out = Path(args.outdir) / f"{Path(path).name.split('.')[0]}{tag}_{args.features}.png"
+        out = Path(args.output) / f"{Path(path).name.split('.')[0]}{tag}_{args.features}.png"
         info = render(path, out, features=args.features, model=args.model, threshold=args.threshold,
                       seed=args.seed, elev=args.elev, azim=args.azim, up=args.up,
                       subsurface=args.subsurface)

@@ -31,7 +31,7 @@ import numpy as np
 
 _CHILD = r"""
 import json, sys, time
-from pointcvx._bench_worker import peak_kb
+from pointcvx.apps.common import peak_kb
 import pointcvx
 args = json.loads(sys.argv[1])
 t = time.perf_counter()
@@ -106,14 +106,14 @@ def run_child(path: Path, n_points: int, features: str, timeout: float) -> dict:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("shape")
-    ap.add_argument("-o", "--outdir", required=True)
+    ap.add_argument("-o", "--output", required=True, help="output folder")
     ap.add_argument("--sizes", default="10000,100000,1000000")
     ap.add_argument("--features", default="model", choices=["model", "optimize"])
     ap.add_argument("--timeout", type=float, default=600.0)
     ap.add_argument("--full-max", type=int, default=100000,
                     help="largest size also decomposed with every point kept (default 100000)")
     args = ap.parse_args(argv)
-    outdir = Path(args.outdir)
+    outdir = Path(args.output)
     outdir.mkdir(parents=True, exist_ok=True)
     sizes = [int(s) for s in args.sizes.split(",")]
     results = []

@@ -1,10 +1,11 @@
-"""Loaders: any supported file -> :class:`pointcvx.cloud.OrientedCloud`.
+"""Loaders: any supported file or in-memory geometry -> :class:`pointcvx.cloud.OrientedCloud`.
 
 The format is sniffed from the content (:func:`detect`); each modality has its own module:
 ``mesh`` (OBJ, PLY, STL, OFF, GLB/GLTF), ``splat`` (INRIA PLY, compressed PLY, SPZ, .splat),
 ``scan`` (PLY points, PCD, XYZ/PTS, LAS) and ``cad`` (STEP, IGES through gmsh). Every loader
 returns a cloud in the input's units; :func:`load` then checks it, normalises it to [-1, 1]^3
-(keeping the transform) and caps the point count, all seeded.
+(keeping the transform) and caps the point count, all seeded. :mod:`.convert` builds clouds from
+numpy, trimesh and open3d objects; :func:`save_cloud` writes one as a PLY.
 """
 
 from __future__ import annotations
@@ -12,15 +13,20 @@ from __future__ import annotations
 import logging
 import os
 import time
+from typing import Any
+
+import numpy as np
 
 from ..cloud import OrientedCloud, check_extent
 from ..errors import InputError
-from .options import LoadOptions
+from ..options import LoadOptions
+from .convert import from_numpy, from_open3d, from_trimesh
 from .sniff import Detected, detect
 
 log = logging.getLogger(__name__)
 
-__all__ = ["load", "detect", "Detected", "LoadOptions", "finalize"]
+__all__ = ["Detected", "LoadOptions", "as_cloud", "detect", "finalize", "from_numpy", "from_open3d",
+           "from_trimesh", "load", "save_cloud"]
 
 
 def _loader(modality: str):
@@ -70,9 +76,9 @@ def load(path: str | os.PathLike, options: LoadOptions | None = None, **kwargs) 
     pointcvx.MissingExtraError
         A format needing an optional extra that is not installed (STEP without ``[cad]``).
     """
-    opts = options if options is not None else LoadOptions.from_kwargs(**kwargs)
     if options is not None and kwargs:
         raise TypeError("pass either options or keyword arguments, not both")
+    opts = options if options is not None else LoadOptions.from_kwargs(**kwargs)
     if not isinstance(path, (str, bytes)) and not hasattr(path, "__fspath__"):
         raise InputError(f"load takes a file path, not a {type(path).__name__}; pass arrays, "
                          "trimesh or open3d objects to pointcvx.decompose (or pointcvx.pipeline.as_cloud)")
@@ -86,3 +92,36 @@ def load(path: str | os.PathLike, options: LoadOptions | None = None, **kwargs) 
     cloud.info["points"] = len(cloud)
     cloud.info["load_seconds"] = round(time.perf_counter() - t0, 3)
     return cloud
+
+
+def save_cloud(cloud: OrientedCloud, path: str | os.PathLike) -> None:
+    """Write points, normals (and colours) of ``cloud`` as a binary PLY, atomically, in the
+    cloud's coordinates (``cloud.in_input_units()`` for the input's)."""
+    from .ply import write_cloud_ply
+
+    write_cloud_ply(path, cloud.points, cloud.normals, cloud.colors)
+
+
+def as_cloud(x: Any, options: LoadOptions | None = None, **kwargs: Any) -> OrientedCloud:
+    """Turn a path, (n, 3) array, (points, normals) tuple, open3d geometry, trimesh or
+    OrientedCloud into a cloud finished by the load options (checked, capped, normalised):
+    ``options``, or the same as keyword arguments (``n_points=20000, seed=1``)."""
+    if options is not None and kwargs:
+        raise TypeError("pass either options or keyword arguments, not both")
+    opts = options if options is not None else LoadOptions.from_kwargs(**kwargs)
+    if isinstance(x, OrientedCloud):
+        return finalize(x, opts)
+    if isinstance(x, (str, bytes)) or hasattr(x, "__fspath__"):
+        return load(os.fsdecode(x) if isinstance(x, bytes) else x, opts)
+    n_mesh = opts.n_points or opts.mesh_points
+    if isinstance(x, (np.ndarray, list)):
+        return finalize(from_numpy(np.asarray(x, dtype=np.float64)), opts)
+    if type(x).__module__.startswith("trimesh"):
+        return finalize(from_trimesh(x, n_points=n_mesh, seed=opts.seed), opts)
+    if type(x).__module__.startswith("open3d"):
+        return finalize(from_open3d(x, n_points=n_mesh, seed=opts.seed), opts)
+    if isinstance(x, tuple) and len(x) == 2:
+        return finalize(from_numpy(np.asarray(x[0], dtype=np.float64), np.asarray(x[1], dtype=np.float64)),
+                        opts)
+    raise InputError(f"cannot decompose a {type(x).__name__}: pass a path, an (n, 3) array, "
+                     "(points, normals), an open3d geometry, a trimesh or an OrientedCloud")

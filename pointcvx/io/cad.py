@@ -10,9 +10,9 @@ gmsh is optional (``pip install 'pointcvx[cad]'``). By default every tessellatio
 child process (:data:`ISOLATE`): gmsh and OpenCASCADE keep process-wide state (gmsh also resets the
 process's locale from the environment), a crash in their native code would otherwise take the
 caller's interpreter down, and in long-lived multi-threaded workers (Ray actors) the same STEP part
-was measured to come out tessellated in two different ways from run to run, which a fresh process
-never did. In the process that meshes, gmsh is a process-wide singleton: every use here holds a
-lock, works in its own model, silences gmsh and OpenCASCADE (which print straight to the process's
+can come out tessellated in two different ways from run to run, which a fresh process never does.
+In the process that meshes, gmsh is a process-wide singleton: every use here holds a lock, works
+in its own model, silences gmsh and OpenCASCADE (which print straight to the process's
 stdout), and finalises gmsh again unless the caller had initialised it.
 """
 
@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import InputError, MissingExtraError, MissingLibraryError, OutputError
+from ..errors import InputError, MissingExtraError, MissingLibraryError, OutputError, first_line
 from ..syslibs import install_hint, missing_library
 from .files import atomic_path, check_readable
 
@@ -50,7 +50,7 @@ SEW_TOLERANCE = 1e-4
 #: differ from run to run; one keeps the same file giving the same cloud.
 THREADS = 1
 #: Tessellate in a fresh child process (see the module docstring); ``tessellate_cad(isolate=)``
-#: overrides it per call. In-process meshing saves the child's start (about 0.3 s).
+#: overrides it per call. In-process meshing saves starting the child.
 ISOLATE = True
 _CHILD_INPUT_ERROR = 3  # the child's exit status for a file it could not tessellate
 
@@ -167,7 +167,7 @@ def _gmsh_detail(gmsh, exc: Exception) -> str:
         last = gmsh.logger.getLastError()
         if last:
             return str(last)
-    return str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+    return first_line(exc)
 
 
 def _occ_error(output: list[str]) -> str:
@@ -394,7 +394,7 @@ def _tessellate_in_session(gmsh, p: Path, fmt: str, mesh_size: float):
     gmsh.option.setNumber("Mesh.MeshSizeMin", size * MIN_SIZE_FRACTION)
     gmsh.option.setNumber("Mesh.MeshSizeFromCurvature", CURVATURE_ELEMENTS)
     # Integrating the curvature size field along B-spline curves to gmsh's default 1e-9 takes
-    # seconds on some parts; 1e-5 gives the same nodes within a few per mille, 5-10x faster.
+    # seconds on some parts; 1e-5 gives the same nodes within a few per mille, much faster.
     gmsh.option.setNumber("Mesh.LcIntegrationPrecision", 1e-5)
     try:
         gmsh.model.mesh.generate(2)
@@ -417,7 +417,7 @@ def _tessellate_in_session(gmsh, p: Path, fmt: str, mesh_size: float):
 def load_cad_file(path: str | os.PathLike, fmt: str, opts):
     """Tessellate a STEP/IGES file and sample it into an oriented cloud (``modality="cad"``).
 
-    ``opts`` is a :class:`pointcvx.io.options.LoadOptions`: ``cad_mesh_size`` sets the
+    ``opts`` is a :class:`pointcvx.options.LoadOptions`: ``cad_mesh_size`` sets the
     tessellation, ``n_points`` (or ``mesh_points``), ``seed`` and ``orient_rays`` the sampling.
     """
     from .mesh import cloud_from_mesh

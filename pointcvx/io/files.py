@@ -1,4 +1,4 @@
-"""Small file helpers: atomic writes and readable-file checks."""
+"""Small file helpers: readable inputs, writable outputs, atomic writes with the user's umask."""
 
 from __future__ import annotations
 
@@ -23,6 +23,21 @@ def check_readable(path: str | os.PathLike) -> Path:
     if not os.access(p, os.R_OK):
         raise InputError(f"{p}: permission denied")
     return p
+
+
+def check_writable(output: str | os.PathLike, inputs: list[str | os.PathLike] = (),
+                   overwrite: bool = False) -> Path:
+    """``output`` as a :class:`Path`; :class:`OutputError` if it is one of ``inputs``, exists
+    without ``overwrite``, or its folder does not exist."""
+    out = Path(output)
+    for src in inputs:
+        if out.exists() and Path(src).exists() and os.path.samefile(out, src):
+            raise OutputError(f"{out}: refusing to overwrite the input file")
+    if out.exists() and not overwrite:
+        raise OutputError(f"{out}: exists; pass --overwrite to replace it")
+    if not out.parent.exists() and str(out.parent):
+        raise OutputError(f"{out.parent}: output directory does not exist")
+    return out
 
 
 def current_umask() -> int:
@@ -67,3 +82,14 @@ def atomic_path(path: str | os.PathLike, overwrite: bool = True) -> Iterator[Pat
         with contextlib.suppress(OSError):
             tmp_path.unlink()
         raise
+
+
+def file_digest(path: str | os.PathLike, length: int = 16) -> str:
+    """The first ``length`` hex digits of the SHA-256 of a file's content."""
+    import hashlib
+
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()[:length]

@@ -17,9 +17,9 @@ import warnings
 import numpy as np
 
 from ..cloud import OrientedCloud, check_points
-from ..errors import InputError
+from ..errors import InputError, first_line
+from ..options import LoadOptions
 from .files import check_readable
-from .options import LoadOptions
 
 log = logging.getLogger(__name__)
 
@@ -41,7 +41,7 @@ def read_mesh(path: str | os.PathLike, fmt: str):
             warnings.simplefilter("ignore")
             loaded = trimesh.load(str(p), file_type=file_type, force="mesh", process=False)
     except (ValueError, IndexError, KeyError, TypeError, OSError, EOFError, AttributeError) as exc:
-        msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        msg = first_line(exc)
         raise InputError(f"{p}: cannot read {file_type.upper()} mesh ({msg})") from None
     if isinstance(loaded, list):
         loaded = trimesh.util.concatenate(loaded)
@@ -87,7 +87,7 @@ def inside_fraction(mesh, points: np.ndarray, n_rays: int = 8, seed: int = 0) ->
     from ..syslibs import import_open3d
     o3d = import_open3d()
 
-    from ..solid import raycasting_scene
+    from ..embree import raycasting_scene
 
     scene = raycasting_scene(np.asarray(mesh.vertices), np.asarray(mesh.faces))
     rng = np.random.default_rng(seed)

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, first_line
 from .files import atomic_path, check_readable
 
 MAX_HEADER = 1 << 20
@@ -78,7 +78,7 @@ def read_ply(path: str | os.PathLike):
         with open(p, "rb") as f:
             data = PlyData.read(f)
     except (PlyParseError, ValueError, EOFError, struct.error, IndexError, UnicodeDecodeError) as exc:
-        msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        msg = first_line(exc)
         raise InputError(f"{p}: truncated or corrupted PLY ({msg})") from None
     return data
 

@@ -4,23 +4,7 @@
 - :mod:`.network`: :class:`FeatureNet` (PVCNN encoder -> triplanes -> ViT -> queried features).
 - :mod:`.train`: losses, one training step, checkpoints, the (optionally distributed) loop.
 - :mod:`.source`: :class:`ModelFeatureSource`, the network as a feature source; :func:`load_model`.
+- :mod:`.weights`: the bundled checkpoint and the per-process cache of loaded networks.
+
+Importing this package imports no torch; the submodules that need it import it.
 """
-
-from .config import ModelConfig
-from .network import FeatureNet, build_model, count_parameters
-from .source import ModelFeatureSource, load_model
-from .train import load_checkpoint, save_checkpoint, seed_everything, train, training_step
-
-__all__ = [
-    "FeatureNet",
-    "ModelConfig",
-    "ModelFeatureSource",
-    "build_model",
-    "count_parameters",
-    "load_checkpoint",
-    "load_model",
-    "save_checkpoint",
-    "seed_everything",
-    "train",
-    "training_step",
-]

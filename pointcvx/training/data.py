@@ -4,7 +4,7 @@ Sources are the real-shape corpus ``../shared/data/train/random_urdfs`` (500 OBJ
 object made of several convex parts, merged on reading) and procedural solids
 (:func:`pointcvx.training.shapes.random_solid`). For each shape :func:`prepare_shape`
 
-1. normalises it to 0.9 of [-1, 1]^3 and makes it watertight (:func:`pointcvx.watertight.
+1. normalises it to 0.9 of [-1, 1]^3 and makes it watertight (:func:`pointcvx.solid.
    watertight_mesh`, mesh2sdf-style marching cubes; the release uses 256^3, we default to 128^3),
    normalising again (marching cubes moves the bounds by a fraction of a voxel);
 2. samples ``n_points`` oriented surface points (area-weighted, face normals);
@@ -31,8 +31,7 @@ import numpy as np
 from ..features.pairs import sample_triplets
 from ..io.files import atomic_path
 from ..io.mesh import read_mesh, sample_surface
-from ..solid import Solid
-from ..watertight import watertight_mesh
+from ..solid import Solid, watertight_mesh
 from .augment import AugmentConfig, augment_sample
 from .shapes import normalize_mesh, random_solid
 

@@ -1,8 +1,9 @@
 """A solid: the inside of a closed triangle surface, queried with Embree ray casting.
 
 Every stage that needs an inside (convex pairs, the volume term of concavity, metrics) goes through
-:class:`Solid`. Meshes give one through watertight conversion, point clouds (splats, scans) through
-a reconstructed proxy surface (:mod:`pointcvx.watertight`), so every modality works the same way.
+:class:`Solid`. Meshes give one directly or through watertight conversion (:mod:`pointcvx.solid.mesh`),
+point clouds (splats, scans) through a reconstructed proxy surface (:mod:`pointcvx.solid.cloud`), so
+every modality works the same way.
 """
 
 from __future__ import annotations
@@ -11,24 +12,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-# Three fixed, non-axis-aligned directions for the inside vote (axis-aligned rays graze CAD faces).
-_VOTE_DIRS = np.array(
+from ..embree import raycasting_scene
+
+#: (3, 3) float: three fixed, non-axis-aligned unit directions for the inside vote of
+#: :meth:`Solid.contains` (axis-aligned rays graze CAD faces).
+VOTE_DIRECTIONS = np.array(
     [[0.5773, 0.5774, 0.5774], [-0.7071, 0.1, 0.7], [0.12, -0.98, 0.157]], dtype=np.float64
 )
-_VOTE_DIRS /= np.linalg.norm(_VOTE_DIRS, axis=1, keepdims=True)
-
-
-def raycasting_scene(vertices: np.ndarray, faces: np.ndarray):
-    """An open3d ``RaycastingScene`` (Embree) over (v, 3) vertices and (f, 3) faces."""
-    from .syslibs import import_open3d
-    o3d = import_open3d()
-
-    scene = o3d.t.geometry.RaycastingScene()
-    scene.add_triangles(
-        o3d.core.Tensor(np.ascontiguousarray(vertices, dtype=np.float32)),
-        o3d.core.Tensor(np.ascontiguousarray(faces, dtype=np.uint32)),
-    )
-    return scene
+VOTE_DIRECTIONS /= np.linalg.norm(VOTE_DIRECTIONS, axis=1, keepdims=True)
 
 
 @dataclass(eq=False)
@@ -51,7 +42,7 @@ class Solid:
 
     @classmethod
     def from_trimesh(cls, mesh) -> Solid:
-        """Wrap a closed ``trimesh.Trimesh`` (make one with :mod:`pointcvx.watertight` first)."""
+        """Wrap a closed ``trimesh.Trimesh`` (close one with :func:`pointcvx.solid.watertight_mesh` first)."""
         return cls(np.asarray(mesh.vertices), np.asarray(mesh.faces))
 
     def to_trimesh(self):
@@ -82,7 +73,7 @@ class Solid:
         return self.vertices.min(axis=0), self.vertices.max(axis=0)
 
     def _rays(self, origins: np.ndarray, dirs: np.ndarray):
-        from .syslibs import import_open3d
+        from ..syslibs import import_open3d
         o3d = import_open3d()
 
         rays = np.concatenate([origins, dirs], axis=1).astype(np.float32)
@@ -97,11 +88,11 @@ class Solid:
         out = np.empty(len(points), dtype=bool)
         for s in range(0, len(points), chunk):
             p = points[s : s + chunk]
-            a, b = (self._odd_hits(p, d) for d in _VOTE_DIRS[:2])
+            a, b = (self._odd_hits(p, d) for d in VOTE_DIRECTIONS[:2])
             inside = a & b
             split = np.flatnonzero(a != b)
             if len(split):
-                inside[split] = self._odd_hits(p[split], _VOTE_DIRS[2])
+                inside[split] = self._odd_hits(p[split], VOTE_DIRECTIONS[2])
             out[s : s + chunk] = inside
         return out
 
@@ -122,7 +113,7 @@ class Solid:
 
     def distance(self, points: np.ndarray) -> np.ndarray:
         """(n,) float: unsigned distance to the surface."""
-        from .syslibs import import_open3d
+        from ..syslibs import import_open3d
         o3d = import_open3d()
 
         q = o3d.core.Tensor(np.asarray(points, dtype=np.float32))

@@ -24,12 +24,13 @@ from scipy import sparse
 from scipy.sparse import csgraph
 from scipy.spatial import cKDTree
 
-from .errors import InputError
-from .metrics import GAP_SPACINGS, convex_hull, hull_contains, part_concavity, sample_spacing
+from ..errors import InputError
+from ..options import SPLIT_METHODS
+from .concavity import GAP_SPACINGS, part_concavity, sample_spacing
+from .hull import convex_hull, hull_contains
 
 log = logging.getLogger(__name__)
 
-SPLIT_METHODS = ("auto", "kmeans", "ward")
 MIN_PART_POINTS = 4
 
 
@@ -154,8 +155,7 @@ class Decomposer:
         self._features = features if callable(features) else np.asarray(features, dtype=np.float64)
         self.feature_seconds = 0.0
         self.solid = solid
-        # "auto" is k-means for every modality: on vhacd61 it gave fewer hulls at the same
-        # concavity than Ward with connectivity on meshes (docs/decomposition.md).
+        # "auto" is k-means for every modality (docs/decomposition.md compares it with Ward).
         self.method = "kmeans" if split == "auto" else split
         self.blend = float(blend)
         # Blends tried at every split (relative to ``blend``); the split whose worse child is
@@ -212,7 +212,7 @@ class Decomposer:
 
         As in the evaluation protocol (the shape intersected with the part's hull), the surface
         of the piece is every cloud point inside the part's hull, the part's own and any other
-        part's that the hull swallows (see metrics.part_concavity for the measure itself). One
+        part's that the hull swallows (see concavity.part_concavity for the measure itself). One
         difference from the protocol, on purpose: a hull face lying on *another* part's face of
         the surface (beyond the gap between samples) counts, where the shape intersected with the
         hull would not; cuts whose hulls overlap rank worse.

@@ -1,8 +1,8 @@
-"""One benchmark run in its own process: ``python -m pointcvx._bench_worker JOB.json``.
+"""One benchmark run in its own process: ``python -m pointcvx.apps.bench.worker JOB.json``.
 
-``pointcvx bench`` (:mod:`pointcvx.bench`) starts this module once per (method, shape, setting)
-so that every run has a fresh interpreter, its own wall-clock timeout and its own peak memory.
-The job file is JSON with:
+``pointcvx bench`` (:func:`pointcvx.apps.bench.launch.launch`) starts this module once per
+(method, shape, setting) so that every run has a fresh interpreter, its own wall-clock timeout
+and its own peak memory. The job file is JSON with:
 
 ``method``
     ``pointcvx``, ``coacd``, ``vhacd`` (V-HACD 2.x through ``pybullet.vhacd``) or ``vhacdx``.
@@ -22,7 +22,8 @@ The job file is JSON with:
 ``result``
     Where to write the result JSON: ``ok``, ``hulls`` (count), ``seconds`` (the method's call
     only: no interpreter start, no imports, no file writing), ``peak_kb`` (peak resident memory
-    of this process in KiB, see :func:`peak_kb`) and ``error`` (one line, when ``ok`` is false).
+    of this process in KiB, see :func:`~pointcvx.apps.common.peak_kb`) and ``error`` (one line,
+    when ``ok`` is false).
 
 The method's own output on stdout and stderr (V-HACD and CoACD are chatty) goes wherever the
 parent sent it; the result travels only through the result file.
@@ -32,12 +33,14 @@ from __future__ import annotations
 
 import json
 import os
-import resource
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
+
+from ...errors import first_line
+from ..common import limit_threads, peak_kb
 
 
 def _load_arrays(job: dict) -> tuple[np.ndarray, np.ndarray]:
@@ -49,7 +52,7 @@ def write_obj(path: str | os.PathLike, hulls: list[tuple[np.ndarray, np.ndarray]
     """Write ``hulls`` ((k, 3) float vertices, (f, 3) int faces) as an OBJ with one ``o hull_NNN``
     object per hull (:func:`pointcvx.export.obj_text`), skipping hulls without a face; return how
     many were written."""
-    from pointcvx.export import obj_text
+    from ...export import obj_text
 
     pairs = [(np.asarray(v, dtype=np.float64).reshape(-1, 3), np.asarray(f, dtype=np.int64).reshape(-1, 3))
              for v, f in hulls]
@@ -87,45 +90,27 @@ def read_obj_objects(path: str | os.PathLike) -> list[tuple[np.ndarray, np.ndarr
     return out
 
 
-def peak_kb() -> int:
-    """Peak resident memory of this process so far, in KiB.
-
-    On Linux this is ``VmHWM`` of ``/proc/self/status``: unlike ``ru_maxrss``, which a process
-    started by fork + exec inherits from its parent (the benchmark's own, often larger, peak),
-    it belongs to this program alone. Elsewhere: ``ru_maxrss`` (bytes on macOS, KiB otherwise).
-    """
-    try:
-        with open("/proc/self/status") as f:
-            for line in f:
-                if line.startswith("VmHWM:"):
-                    return int(line.split()[1])
-    except (OSError, ValueError, IndexError):
-        pass
-    rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-    return rss // 1024 if sys.platform == "darwin" else rss
-
-
 # ------------------------------------------------------------------------------------ methods
-def _warm_pointcvx(params: dict) -> None:
+def warm_pointcvx(params: dict) -> None:
     """Bring the process to the state of a long-running one (``pointcvx batch``, a scan pipeline)
     before its next shape: :func:`pointcvx.pipeline.preload` (lazy imports, model weights), then
     one small decomposition. The timed call then pays none of these one-time costs, as the
     baselines' timed calls do not pay their imports."""
     import trimesh
 
-    from pointcvx.pipeline import decompose, preload
+    from ...pipeline import decompose, preload
 
     preload(params.get("features", "auto"), params.get("model"))
     # One small decomposition of a ring: the first call of a process also pays one-time set-up
-    # inside torch, scikit-learn and Qhull (about a second), which a batch pays once.
+    # inside torch, scikit-learn and Qhull, which a batch pays once.
     ring = trimesh.creation.annulus(r_min=0.5, r_max=1.0, height=0.4)
     decompose(ring, **{**params, "max_hulls": 4, "threshold": 0.2})
 
 
 def _run_pointcvx(job: dict, params: dict) -> tuple[list, float]:
-    from pointcvx.pipeline import decompose
+    from ...pipeline import decompose
 
-    _warm_pointcvx(params)
+    warm_pointcvx(params)
     t0 = time.perf_counter()
     result = decompose(job["input"], **params)
     seconds = time.perf_counter() - t0
@@ -174,16 +159,6 @@ def _run_vhacdx(job: dict, params: dict) -> tuple[list, float]:
 _RUNNERS = {"pointcvx": _run_pointcvx, "coacd": _run_coacd, "vhacd": _run_vhacd, "vhacdx": _run_vhacdx}
 
 
-def _limit_threads(threads: int | None) -> None:
-    if not threads:
-        return
-    import torch
-    from threadpoolctl import threadpool_limits
-
-    threadpool_limits(int(threads))
-    torch.set_num_threads(int(threads))
-
-
 def run_job(job: dict) -> dict:
     """Run ``job`` (see the module docstring) and return its result dict (also written to
     ``job["result"]``)."""
@@ -191,7 +166,7 @@ def run_job(job: dict) -> dict:
     try:
         runner = _RUNNERS[job["method"]]
         if job["method"] == "pointcvx":
-            _limit_threads(job.get("threads"))
+            limit_threads(job.get("threads"))
         hulls, seconds = runner(job, dict(job.get("params") or {}))
         result["seconds"] = seconds
         result["peak_kb"] = peak_kb()
@@ -202,8 +177,7 @@ def run_job(job: dict) -> dict:
     # A decomposition library can fail in any way on a hard shape; the benchmark records the
     # failure as an error row and goes on with the next run.
     except Exception as exc:  # noqa: BLE001
-        first = str(exc).splitlines()[0] if str(exc) else ""
-        result["error"] = f"{type(exc).__name__}: {first}"[:300]
+        result["error"] = first_line(exc, typed=True)
     result.setdefault("peak_kb", peak_kb())
     tmp = Path(job["result"]).with_suffix(".part")
     tmp.write_text(json.dumps(result))
@@ -214,7 +188,7 @@ def run_job(job: dict) -> dict:
 def main(argv: list[str] | None = None) -> int:
     args = sys.argv[1:] if argv is None else argv
     if len(args) != 1:
-        print("usage: python -m pointcvx._bench_worker JOB.json", file=sys.stderr)
+        print("usage: python -m pointcvx.apps.bench.worker JOB.json", file=sys.stderr)
         return 2
     job = json.loads(Path(args[0]).read_text())
     return 0 if run_job(job)["ok"] else 1

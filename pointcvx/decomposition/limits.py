@@ -32,13 +32,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import InputError
+from ..errors import InputError
+from .hull import convex_hull, plane_basis
 
 log = logging.getLogger(__name__)
 
 # Per convex collider. PhysX (CPU cooking): 255 vertices, 255 polygons; PhysX GPU (Isaac Sim/Lab):
 # 64 vertices, 64 polygons; Newton: 64 vertices; Unity MeshCollider(convex): 255 triangles.
 # MuJoCo and Bullet take hulls of any size.
+#: Keyed by :data:`pointcvx.options.ENGINE_TARGETS` (the names the option accepts).
 TARGETS: dict[str, dict[str, int | None]] = {
     "mujoco": {"max_vertices": None, "max_faces": None},
     "bullet": {"max_vertices": None, "max_faces": None},
@@ -127,8 +129,6 @@ def simplify_hull(vertices: np.ndarray, faces: np.ndarray,
     added_volume : float
         Volume of the result minus the hull's (0.0 when the hull was already within the caps).
     """
-    from .metrics import convex_hull
-
     vertices = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64)
     if not limits.active or limits.allows(vertices, faces):
@@ -390,8 +390,6 @@ def _contain(out: np.ndarray, faces: np.ndarray, points: np.ndarray, center: np.
 
 def _reduce_solid(vertices: np.ndarray, budget: int) -> tuple[np.ndarray, np.ndarray]:
     """A solid hull of at most ``budget`` vertices containing (v, 3) ``vertices``."""
-    from .metrics import convex_hull
-
     center = vertices.mean(axis=0)
     scale = float(np.abs(vertices - center).max())
     local = (vertices - center) / scale
@@ -401,12 +399,10 @@ def _reduce_solid(vertices: np.ndarray, budget: int) -> tuple[np.ndarray, np.nda
 
 
 def _without_slivers(vertices: np.ndarray, tol: float = _SLIVER):
-    """The hull (:class:`~pointcvx.metrics.Hull`) of (v, 3) ``vertices`` (unit size) less the
+    """The hull (:class:`~pointcvx.decomposition.hull.Polytope`) of (v, 3) ``vertices`` (unit size) less the
     vertices within ``tol`` of a hull edge (the apex of a sliver triangle, or one of two near
     duplicates): they add nothing but triangles whose planes rounding can tilt. What this loses
     (at most ``tol``) the final containment step gives back."""
-    from .metrics import convex_hull
-
     for _ in range(16):
         hull = convex_hull(vertices)
         tri = hull.vertices[hull.faces]
@@ -427,10 +423,8 @@ def _without_slivers(vertices: np.ndarray, tol: float = _SLIVER):
 def _reduce_flat(vertices: np.ndarray, normal: np.ndarray, budget: int) -> tuple[np.ndarray, np.ndarray]:
     """A flat polygon of at most ``budget`` corners containing the (v, 3) ``vertices`` lying on the
     plane with unit ``normal``; faces on both sides."""
-    from .metrics import _basis
-
     center = vertices.mean(axis=0)
-    u, v = _basis(normal / np.linalg.norm(normal))
+    u, v = plane_basis(normal / np.linalg.norm(normal))
     uv = np.stack([(vertices - center) @ u, (vertices - center) @ v], axis=1)
     scale = float(np.abs(uv).max())
     local = uv / scale

@@ -1,0 +1,90 @@
+"""The ``pointcvx`` command: one module per sub-command; :func:`main` parses and turns every
+failure into one line on stderr and an exit status (:mod:`pointcvx.errors`): 1 bad input or
+output, 2 bad usage, 3 internal error, 130 interrupted."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from pathlib import Path
+
+from ..errors import (
+    EXIT_INPUT,
+    EXIT_INTERNAL,
+    EXIT_INTERRUPT,
+    EXIT_USAGE,
+    MissingLibraryError,
+    PointcvxError,
+    first_line,
+)
+from ..flags import UsageParser
+from ..syslibs import install_hint, missing_library
+from ..version import __version__
+
+log = logging.getLogger("pointcvx")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from . import batch, bench, decompose, evaluate, info, train
+
+    parser = UsageParser(
+        prog="pointcvx",
+        description="Approximate convex decomposition of Gaussian splats, scans, meshes and CAD parts.",
+        epilog="Exit status: 0 ok, 1 bad input or output, 2 bad usage, 3 internal error.",
+    )
+    parser.add_argument("--version", action="version", version=f"pointcvx {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=UsageParser)
+    info.add_parser(sub)
+    decompose.add_parser(sub)
+    train.add_parsers(sub)
+    evaluate.add_parser(sub)
+    bench.add_parser(sub)
+    batch.add_parser(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.command is None:
+        parser.print_help(sys.stderr)
+        return EXIT_USAGE
+    logging.basicConfig(
+        level=logging.DEBUG if getattr(args, "verbose", False) else logging.WARNING,
+        format="pointcvx: %(levelname)s: %(message)s",
+    )
+    try:
+        return args.func(args)
+    except PointcvxError as exc:
+        print(f"pointcvx: error: {exc}", file=sys.stderr)
+        return EXIT_INPUT
+    except KeyboardInterrupt:
+        print("pointcvx: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPT
+    except MemoryError:
+        print("pointcvx: error: out of memory (try a smaller --points)", file=sys.stderr)
+        return EXIT_INPUT
+    except (ImportError, OSError) as exc:
+        library = missing_library(exc)
+        if library is None:
+            return _internal_error(args, exc)
+        print(f"pointcvx: error: {MissingLibraryError(_missing_module(exc), library, install_hint(library))}",
+              file=sys.stderr)
+        return EXIT_INPUT
+    except Exception as exc:  # noqa: BLE001 - the CLI promises one line, never a traceback
+        return _internal_error(args, exc)
+
+
+def _missing_module(exc: BaseException) -> str:
+    """The package whose native module failed to load (its folder's name), or 'a dependency'."""
+    path = getattr(exc, "path", None)
+    return Path(path).parent.name if path else "a dependency"
+
+
+def _internal_error(args: argparse.Namespace, exc: BaseException) -> int:
+    if getattr(args, "verbose", False):
+        log.exception("internal error")
+    print(f"pointcvx: internal error: {type(exc).__name__}: {first_line(exc)} (rerun with -v for details)",
+          file=sys.stderr)
+    return EXIT_INTERNAL

@@ -1,0 +1,208 @@
+"""CoACD's concavity, as the decomposition's stop rule measures it.
+
+``Concavity(P) = max(Hb, k * Rv)`` with ``k = 0.3``, ``Hb`` the two-way Hausdorff distance between
+the surface of ``P`` and the surface of its convex hull, and ``Rv = (3 |V(hull) - V(P)| /
+(4 pi))^(1/3)`` the radius of the sphere of the missing volume. :func:`part_concavity` measures
+a part known only by its surface samples, inside the whole shape's solid, fast enough for the
+recursive decomposition's hot loop; :mod:`pointcvx.evaluate` measures exact pieces of a mesh with
+the same terms (:func:`concavity_terms`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..cloud import check_points
+from ..errors import InputError
+from .hull import Polytope, convex_hull, max_inside_depth, sample_hull_interior, sample_hull_surface
+
+K_CONCAVITY = 0.3
+_FOUR_THIRDS_PI = 4.0 * np.pi / 3.0
+
+
+# ---------------------------------------------------------------------------------- distances
+def nearest_distance(points, targets) -> np.ndarray:
+    """(n,) float: Euclidean distance from each of (n, 3) ``points`` to the nearest of (m, 3)
+    ``targets`` (kd-tree)."""
+    from scipy.spatial import cKDTree
+
+    pts = check_points(points, allow_empty=True)
+    tgt = check_points(targets, "targets", allow_empty=True)
+    if len(pts) == 0:
+        return np.zeros(0)
+    if len(tgt) == 0:
+        raise InputError("no target points to measure distances to")
+    tree = cKDTree(tgt, leafsize=32, balanced_tree=False, compact_nodes=False)
+    return tree.query(pts, workers=-1 if len(pts) > 50000 else 1)[0]
+
+
+def chamfer_distance(a, b) -> float:
+    """Chamfer distance of two samplings (n, 3) and (m, 3): the mean of the two directional mean
+    nearest-neighbour Euclidean distances, ``(mean_a d(a, B) + mean_b d(b, A)) / 2``."""
+    return 0.5 * float(nearest_distance(a, b).mean() + nearest_distance(b, a).mean())
+
+
+def hausdorff_distance(a, b) -> float:
+    """Two-way Hausdorff distance of two samplings (n, 3) and (m, 3)."""
+    return float(max(nearest_distance(a, b).max(), nearest_distance(b, a).max()))
+
+
+def rv_term(volume_difference: float) -> float:
+    """CoACD's Rv: radius of the sphere of volume ``|volume_difference|``."""
+    return float((abs(volume_difference) / _FOUR_THIRDS_PI) ** (1.0 / 3.0))
+
+
+def concavity_terms(hb_part: float, hb_hull: float, hull_volume: float, part_volume: float,
+                     k: float) -> dict[str, float]:
+    """CoACD's concavity ``max(Hb, k * Rv)`` from its two Hausdorff directions and the volumes,
+    with every term, as both concavity functions report them."""
+    hb = max(hb_part, hb_hull)
+    rv = rv_term(hull_volume - part_volume)
+    return {
+        "concavity": max(hb, k * rv),
+        "hb": hb,
+        "hb_part": hb_part,
+        "hb_hull": hb_hull,
+        "rv": rv,
+        "hull_volume": float(hull_volume),
+        "part_volume": float(part_volume),
+    }
+
+
+# ------------------------------------------------------------------- the stop rule
+#: Polytope-surface samples closer than this to the solid's surface lie on the shape, not in the
+#: air (normalised frame).
+SURFACE_TOL = 1e-3
+#: A part's samples leave gaps of up to about this many times their typical spacing.
+GAP_SPACINGS = 4.0
+
+
+def _max_outside(solid, samples: np.ndarray, dist: np.ndarray, surface_gap: float = 0.0,
+                 tol: float = SURFACE_TOL) -> float:
+    """max of (n,) ``dist`` over the (n, 3) hull-surface ``samples`` that are concavity (0 if
+    none): those in the air (outside ``solid``), and those on the solid's surface (within
+    ``tol``) further than ``surface_gap`` from the part.
+
+    A sample on the surface near the part sits on a face the part shares with its hull, in a gap
+    between the part's samples: not concavity. One on the surface far from the part lies on
+    *another* part's face: the hull spreads over it. (The inside test of a point on the surface
+    depends on the face's orientation, so surface samples are told apart by distance first.)
+    Tests samples in decreasing order of ``dist``, in growing batches, and stops at the first
+    batch holding one that counts: exact, and cheap unless most far samples are inside.
+    """
+    order = np.argsort(-dist)
+    s, step = 0, 64
+    while s < len(order):
+        chunk = order[s : s + step]
+        on_surface = solid.distance(samples[chunk]) <= tol
+        counts = on_surface & (dist[chunk] > surface_gap)
+        air = np.flatnonzero(~on_surface)
+        if len(air):
+            counts[air] = ~solid.contains(samples[chunk[air]])
+        if counts.any():
+            return float(dist[chunk[int(np.argmax(counts))]])
+        s, step = s + step, 4 * step
+    return 0.0
+
+
+def sample_spacing(points: np.ndarray) -> float:
+    """Median distance from each of the (n, 3) ``points`` to its nearest neighbour."""
+    from scipy.spatial import cKDTree
+
+    if len(points) < 2:
+        return 0.0
+    return float(np.median(cKDTree(points).query(points, k=2)[0][:, 1]))
+
+
+def part_concavity(
+    points,
+    solid,
+    *,
+    k: float = K_CONCAVITY,
+    hull: Polytope | None = None,
+    n_hull_samples: int = 1000,
+    n_volume_samples: int = 1000,
+    seed: int = 0,
+    surface_gap: float | None = None,
+    return_terms: bool = False,
+):
+    """Concavity of a part known by its surface samples, inside the whole shape's solid.
+
+    Parameters
+    ----------
+    points : (n, 3) float
+        Samples of the part's share of the shape's surface. Where the part was cut from the rest
+        of the shape there is no surface, hence no samples (no cap).
+    solid : pointcvx.solid.Solid or None
+        The whole shape. ``None`` gives the pure surface version (see below).
+    k : float
+        Weight of the volume term (CoACD: 0.3).
+    hull : Polytope, optional
+        ``convex_hull(points)`` if already known (saves the qhull call, about a third of the
+        time); it must be the hull of ``points``: points outside it count as depth 0.
+    n_hull_samples, n_volume_samples : int
+        Samples of the hull's surface (for Hb) and of its volume (for Rv).
+    seed : int
+        Seeds both samplings; same input and seed, same result.
+    surface_gap : float, optional
+        The largest gap expected between neighbouring part samples (default: ``GAP_SPACINGS``
+        times their median spacing). Polytope-surface samples on the solid's surface and within
+        this of the part lie on the part's own faces and are not concavity.
+    return_terms : bool
+        Return a dict of the terms instead of the concavity alone.
+
+    Returns
+    -------
+    float, or dict with ``concavity``, ``hb``, ``hb_part`` (part -> hull), ``hb_hull``
+    (hull -> part), ``rv``, ``hull_volume``, ``part_volume``, ``outside_fraction``.
+
+    Definition
+    ----------
+    With ``H = conv(points)`` and ``S`` the solid::
+
+        Hb = max( max_p dist(p, boundary of H),
+                  max over hull-surface samples h NOT inside S of min_p |h - p| )
+        Rv = (3 |V(H) - V(H ∩ S)| / (4 pi))^(1/3)
+        concavity = max(Hb, k * Rv)
+
+    ``dist(p, boundary of H)`` is exact (facet planes; the points are inside their hull). The
+    hull-surface samples inside the solid lie on or across the cut, through the interior, where the
+    part has no samples: they are not concavity and are skipped. The part's volume is the solid
+    inside its hull: ``V(H) - V(H ∩ S)`` is ``V(H)`` times the fraction of ``n_volume_samples``
+    uniform samples of ``H`` that fall outside ``S`` (Monte Carlo). Material of other parts that
+    lies inside ``H`` therefore counts as the part's, as in :func:`evaluate` (``M ∩ hull``).
+
+    ``solid=None``: ``Hb`` counts every hull-surface sample and ``Rv = 0``.
+
+    The hull -> part direction measures distances to the nearest *sample*. Where a face of the
+    part is also a face of its hull (a box, a flat CAD face), hull samples lie on the solid's
+    surface, between part samples: they are skipped when within ``surface_gap`` of the part, so
+    a convex part measures 0 whatever its sampling density. A hull face spread over the surface of
+    *another* part (two boxes of an L grouped into overlapping hulls) is further than that from
+    the part's samples and still counts.
+    """
+    pts = check_points(points, allow_empty=True)
+    if len(pts) == 0:
+        raise InputError("the part has no points")
+    own_hull = hull is None
+    if own_hull:
+        hull = convex_hull(pts)
+    rng = np.random.default_rng(seed)
+    hs = sample_hull_surface(hull, int(n_hull_samples), rng)
+    d_hs = nearest_distance(hs, pts) if len(hs) else np.zeros(0)
+    hb_part = max_inside_depth(hull, pts, hull.index if own_hull else None)
+    part_volume = hull.volume
+    outside_fraction = 0.0
+    if solid is None:
+        hb_hull = float(d_hs.max(initial=0.0))
+    else:
+        if hull.volume > 0 and n_volume_samples > 0:
+            vs = sample_hull_interior(hull, int(n_volume_samples), rng)
+            outside_fraction = float(1.0 - solid.contains(vs).mean())
+            part_volume = hull.volume * (1.0 - outside_fraction)
+        if surface_gap is None:
+            surface_gap = GAP_SPACINGS * sample_spacing(pts)
+        hb_hull = _max_outside(solid, hs, d_hs, surface_gap)
+    terms = concavity_terms(hb_part, hb_hull, hull.volume, part_volume, k)
+    terms["outside_fraction"] = outside_fraction
+    return terms if return_terms else terms["concavity"]
