@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from .errors import InputError
+from .errors import InputError, first_line
 
 MODALITIES = ("mesh", "cad", "splat", "scan", "points")
 
@@ -83,12 +83,27 @@ def _unit(v: np.ndarray) -> np.ndarray:
     return v / np.where(n > 0, n, 1.0)
 
 
+#: Largest coordinate magnitude accepted (any unit). Beyond it float64 cannot hold the detail of a
+#: real shape anyway, squared distances head for overflow, and trimesh's vertex-merge grid (1e-8
+#: steps counted in int64) overflows near 9e10.
+MAX_COORDINATE = 1e10
+
+
 def check_points(points: Any, what: str = "points", allow_empty: bool = False) -> np.ndarray:
-    """Validate and return ``points`` as (n, 3) float64; raise :class:`InputError` otherwise."""
+    """Validate and return ``points`` as (n, 3) float64; raise :class:`InputError` otherwise.
+
+    Real numbers only (integer or float arrays: not bool, complex, object or strings), finite and
+    within :data:`MAX_COORDINATE` of the origin.
+    """
     try:
-        pts = np.asarray(points, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise InputError(f"{what} are not numeric: {exc}") from None
+        arr = np.asarray(points)
+    except (TypeError, ValueError) as exc:  # ragged nested lists
+        raise InputError(f"{what} are not an (n, 3) array of numbers: {first_line(exc)}") from None
+    if arr.dtype.kind not in "iuf":
+        kind = {"b": "bool", "c": "complex", "O": "object", "U": "string", "S": "bytes"}.get(
+            arr.dtype.kind, str(arr.dtype))
+        raise InputError(f"{what} must be real numbers (an (n, 3) float array), got a {kind} array")
+    pts = arr.astype(np.float64, copy=False)
     if pts.ndim != 2 or pts.shape[1] != 3:
         raise InputError(f"{what} must have shape (n, 3), got {pts.shape}")
     if len(pts) == 0 and not allow_empty:
@@ -96,6 +111,10 @@ def check_points(points: Any, what: str = "points", allow_empty: bool = False) -
     bad = ~np.isfinite(pts).all(axis=1)
     if bad.any():
         raise InputError(f"{int(bad.sum())} of {len(pts)} {what} have NaN or infinite coordinates")
+    far = np.abs(pts).max(axis=1) > MAX_COORDINATE if len(pts) else bad
+    if far.any():
+        raise InputError(f"{int(far.sum())} of {len(pts)} {what} lie beyond {MAX_COORDINATE:g} from the "
+                         f"origin, more than pointcvx handles in any unit: rescale the input")
     return pts
 
 
@@ -140,6 +159,9 @@ class OrientedCloud:
     info : dict
         Provenance for people: source path, format, counts, how normals were obtained, what was
         filtered. Plain JSON-able values.
+    removed : (m, 3) float64, optional
+        Points that isolation removed (support plane, clutter; :mod:`pointcvx.scene`), in the
+        same coordinates as ``points``: not part of the shape, kept for pictures.
     """
 
     points: np.ndarray
@@ -151,6 +173,7 @@ class OrientedCloud:
     mesh: Any = None
     face_index: np.ndarray | None = None
     info: dict = field(default_factory=dict)
+    removed: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         self.points = check_points(self.points)
@@ -222,8 +245,10 @@ class OrientedCloud:
         if self.mesh is not None:
             mesh = self.mesh.copy()
             mesh.apply_transform(t.as_matrix())
+        removed = None if self.removed is None else t.forward(self.removed)
         return self.replace(
-            points=t.forward(self.points), mesh=mesh, normalization=self.normalization.then(t)
+            points=t.forward(self.points), mesh=mesh, normalization=self.normalization.then(t),
+            removed=removed,
         )
 
     def normalized(self) -> OrientedCloud:

@@ -45,6 +45,10 @@ class MissingLibraryError(PointcvxError, ImportError):
         super().__init__(f"{module} needs the system library {library}, which this machine lacks: {hint}")
 
 
+class TimeLimitError(PointcvxError, TimeoutError):
+    """A decomposition ran past its ``timeout``; nothing was written."""
+
+
 #: Exit statuses of the ``pointcvx`` command.
 EXIT_OK, EXIT_INPUT, EXIT_USAGE, EXIT_INTERNAL, EXIT_INTERRUPT = 0, 1, 2, 3, 130
 

@@ -24,7 +24,8 @@ class UsageParser(argparse.ArgumentParser):
         self.exit(EXIT_USAGE, f"pointcvx: error: {message} (see pointcvx --help)\n")
 
 
-_KIND_NAMES = {int: "an integer", float: "a number", str: "a string", os.PathLike: "a path"}
+_KIND_NAMES = {int: "an integer", float: "a number", str: "a string", os.PathLike: "a path",
+               tuple: "comma-separated numbers"}
 
 
 def parse_value(name: str, spec: Spec):
@@ -32,7 +33,12 @@ def parse_value(name: str, spec: Spec):
 
     def parse(text: str) -> Any:
         try:
-            value = spec.kind(text) if spec.kind in (int, float) else text
+            if spec.kind is tuple:
+                value = tuple(float(x) for x in text.split(","))
+            elif spec.length and not _is_number(text):
+                value = text  # a length with a unit: checked below
+            else:
+                value = spec.kind(text) if spec.kind in (int, float) else text
         except ValueError:
             raise argparse.ArgumentTypeError(f"expected {_KIND_NAMES[spec.kind]}, got {text!r}") from None
         try:
@@ -42,6 +48,14 @@ def parse_value(name: str, spec: Spec):
 
     parse.__name__ = _KIND_NAMES[spec.kind]
     return parse
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
 
 
 def _group(parser: argparse.ArgumentParser, title: str):
@@ -79,9 +93,11 @@ def add_flags(parser: argparse.ArgumentParser, options: type[Options], *, skip: 
                            choices=spec.choices, help=spec.help.replace("%", "%%") + shown)
 
 
-def options_from_args(args: argparse.Namespace, options: type[Options], **extra: Any) -> Options:
-    """An instance of ``options`` from parsed arguments (options without a flag keep their
-    defaults unless given in ``extra``)."""
-    values = {name: getattr(args, name) for name in options.names() if hasattr(args, name)}
+def options_from_args(args: argparse.Namespace, options: type[Options], *, skip: tuple[str, ...] = (),
+                      **extra: Any) -> Options:
+    """An instance of ``options`` from parsed arguments (options without a flag, and ``skip``,
+    the ones :func:`add_flags` skipped, keep their defaults unless given in ``extra``)."""
+    values = {name: getattr(args, name) for name in options.names()
+              if hasattr(args, name) and name not in skip}
     values.update(extra)
     return options(**values)

@@ -12,19 +12,22 @@ from __future__ import annotations
 import math
 import numbers
 import os
+import re
 from dataclasses import MISSING, Field, dataclass, field, fields
 from typing import Any, ClassVar
-
-import numpy as np
 
 from .errors import InputError
 
 #: Where features come from (:func:`pointcvx.pipeline.resolve_features`).
-FEATURE_METHODS = ("auto", "optimize", "model")
+FEATURE_METHODS = ("auto", "optimize", "model", "fast")
 #: How a part is cut in two (:class:`pointcvx.decomposition.tree.Decomposer`).
 SPLIT_METHODS = ("auto", "kmeans", "ward")
 #: Physics engines whose per-hull caps :mod:`pointcvx.decomposition.limits` knows.
 ENGINE_TARGETS = ("mujoco", "bullet", "physx", "physx-gpu", "newton", "unity")
+#: How splats and scans are freed from their surroundings (:func:`pointcvx.scene.isolate`).
+ISOLATE_MODES = ("auto", "all", "largest", "none")
+#: Whether a capture is decomposed as a scene of objects (:mod:`pointcvx.scene.objects`).
+SCENE_MODES = ("auto", "on", "off")
 #: Surface points :func:`pointcvx.decompose` works on when ``n_points`` is not given.
 DECOMPOSE_POINTS = 20000
 
@@ -38,7 +41,8 @@ class Spec:
     help : str
         One line for ``--help`` and the docs: what the option does and why one would change it.
     kind : type
-        ``int``, ``float``, ``str``, ``bool`` or ``os.PathLike`` (a path, kept as ``str``).
+        ``int``, ``float``, ``str``, ``bool``, ``os.PathLike`` (a path, kept as ``str``) or
+        ``tuple`` (a box: six finite numbers, the min corner then the max corner).
     flag : str or None
         The long flag (``--threshold``); None: API only. Boolean options whose default is True
         are offered as ``--no-NAME`` flags.
@@ -49,6 +53,9 @@ class Spec:
         Smallest and largest allowed values; ``low_open``/``high_open`` exclude them.
     optional : bool
         None is allowed (and means "off" or "automatic", as the help says).
+    length : bool
+        A number may also be given as a length with a unit (``"5mm"``, see :data:`LENGTH_UNITS`),
+        kept as that text and converted where the input's scale is known.
     group : str
         Heading of the flag in ``--help``.
     """
@@ -65,6 +72,7 @@ class Spec:
     high_open: bool = False
     optional: bool = False
     group: str = ""
+    length: bool = False
 
     def describe_range(self) -> str:
         """The allowed values in words, for error messages."""
@@ -95,15 +103,24 @@ def spec_of(f: Field) -> Spec:
 def check_value(name: str, spec: Spec, value: Any) -> Any:
     """``value`` converted to the option's type; :class:`InputError` naming ``name`` when it is of
     the wrong type or outside the declared range."""
+    import numpy as np  # here, not at the top: the command line's parsers need no numpy
+
     if value is None:
         if spec.optional:
             return None
         raise InputError(f"{name} must be set, got None")
     kind = spec.kind
+    if spec.length and isinstance(value, str):
+        metres = parse_length(value, name)
+        if not metres > 0:
+            raise InputError(f"{name} must be positive, got {value!r}")
+        return value.strip().replace(" ", "")
     if kind is bool:
         if isinstance(value, (bool, np.bool_)):
             return bool(value)
         raise InputError(f"{name} must be True or False, got {value!r}")
+    if kind is tuple:
+        return _check_box(name, value)
     if kind is str:
         if not isinstance(value, str):
             raise InputError(f"{name} must be a string, got {type(value).__name__}")
@@ -128,6 +145,38 @@ def check_value(name: str, spec: Spec, value: Any) -> Any:
     if spec.high is not None and (value > spec.high or (spec.high_open and value == spec.high)):
         raise InputError(f"{name} must be {spec.describe_range()}, got {value}")
     return value
+
+
+#: Units of lengths given as text (``--threshold 5mm``), in metres, and of ``units``.
+LENGTH_UNITS = {"m": 1.0, "cm": 0.01, "mm": 0.001, "um": 1e-6, "in": 0.0254, "ft": 0.3048}
+_LENGTH = re.compile(r"^\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*([a-z]+)\s*$")
+
+
+def parse_length(text: str, name: str = "length") -> float:
+    """Metres of a length written with a unit (``"5mm"``, ``"0.5 cm"``, ``"2in"``)."""
+    match = _LENGTH.match(text.lower())
+    if match is None or match.group(2) not in LENGTH_UNITS:
+        raise InputError(f"{name} must be a number or a length with a unit ({', '.join(LENGTH_UNITS)}), "
+                         f"got {text!r}")
+    value = float(match.group(1)) * LENGTH_UNITS[match.group(2)]
+    if not math.isfinite(value):
+        raise InputError(f"{name} must be finite, got {text!r}")
+    return value
+
+
+def _check_box(name: str, value: Any) -> tuple[float, ...]:
+    """Six finite numbers (x0, y0, z0, x1, y1, z1) with x0 <= x1, y0 <= y1, z0 <= z1."""
+    import numpy as np
+
+    try:
+        box = np.asarray(value, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        raise InputError(f"{name} must be six numbers x0,y0,z0,x1,y1,z1, got {value!r}") from None
+    if box.shape != (6,) or not np.isfinite(box).all():
+        raise InputError(f"{name} must be six finite numbers x0,y0,z0,x1,y1,z1, got {value!r}")
+    if (box[:3] > box[3:]).any():
+        raise InputError(f"{name}: the first corner must not exceed the second, got {value!r}")
+    return tuple(float(v) for v in box)
 
 
 class Options:
@@ -168,6 +217,7 @@ _ALL = "loading (all inputs)"
 _MESH = "meshes and CAD"
 _SPLAT = "Gaussian splats"
 _SCAN = "scans (point clouds without normals)"
+_ISOLATE = "splats and scans: the object and its surroundings"
 
 
 @dataclass(frozen=True)
@@ -211,6 +261,14 @@ class LoadOptions(Options):
                                       low_open=True, optional=True, group=_SCAN)
     normal_neighbors: int = option(24, "neighbours used to estimate normals", int,
                                    "--normal-neighbors", metavar="K", low=3, group=_SCAN)
+    isolate: str = option(
+        "auto", "free the object from its surroundings: all removes the support plane (floor, "
+        "table, ground disc) and small clutter pieces, largest keeps only the largest piece, none "
+        "keeps everything; auto is all on splats and scans and none on meshes and CAD", str,
+        "--isolate", choices=ISOLATE_MODES, group=_ISOLATE)
+    crop: tuple | None = option(None, "keep only the points inside this box, in input units "
+                                "(min corner, then max corner)", tuple, "--crop",
+                                metavar="X0,Y0,Z0,X1,Y1,Z1", optional=True, group=_ISOLATE)
 
 
 @dataclass(frozen=True)
@@ -219,14 +277,17 @@ class DecomposeOptions(Options):
 
     KIND: ClassVar[str] = "decomposition option"
 
-    threshold: float = option(
-        0.1, "concavity threshold in the normalised [-1, 1]^3 frame: a part at most this concave "
-        "is not split further", float, "--threshold", short="-t", low=0, low_open=True)
+    threshold: float | str = option(
+        0.1, "concavity threshold: a part at most this concave is not split further; a number is "
+        "in the normalised [-1, 1]^3 frame (relative to the shape's size), a length with a unit "
+        "(5mm, 0.2in) is in the input's units (see units)", float, "--threshold", short="-t", low=0,
+        low_open=True, length=True)
     max_hulls: int = option(64, "hull budget: never more hulls than this", int, "--max-hulls",
                             short="-k", low=1)
     features: str = option(
         "auto", "where the convex-aware features come from: optimised for the shape, the bundled "
-        "feed-forward model, or auto (the model on splats, optimisation on other inputs)", str,
+        "feed-forward model, fast (the per-shape field fitted in a third of the steps, in numpy, "
+        "without torch; opt-in), or auto (the model on splats, optimisation on other inputs)", str,
         "--features", choices=FEATURE_METHODS)
     model: str | None = option(None, "feed-forward model checkpoint (from `pointcvx train`) for "
                                "the model features; default: the bundled one", os.PathLike,
@@ -251,6 +312,17 @@ class DecomposeOptions(Options):
     max_hull_vertices: int | None = option(None, "at most this many vertices per hull (with a "
                                            "target, the tighter cap wins)", int,
                                            "--max-hull-vertices", metavar="N", low=4, optional=True)
+    units: str = option(
+        "auto", "the length unit of the input's coordinates, for thresholds given as lengths: "
+        "auto is mm for CAD parts (OpenCASCADE reads STEP in mm) and m for everything else",
+        str, "--units", choices=("auto", *LENGTH_UNITS))
+    scene: str = option(
+        "auto", "decompose a scene capture object by object (one body per object in robot "
+        "formats): on, off, or auto (depth frames, and captures whose isolation keeps several "
+        "objects)", str, "--scene", choices=SCENE_MODES)
+    timeout: float | None = option(
+        None, "give up after this many seconds with an error and no output (loading included)",
+        float, "--timeout", metavar="SECONDS", low=0, low_open=True, optional=True)
 
 
 def split_kwargs(kwargs: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:

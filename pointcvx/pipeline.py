@@ -6,6 +6,7 @@ load -> oriented cloud -> solid -> features -> recursive split (+ merge) -> hull
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import functools
 import inspect
 import os
@@ -17,17 +18,21 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from .cloud import OrientedCloud
+from .deadline import Deadline
 from .errors import InputError
 from .io import as_cloud
 from .model.weights import bundled_model_path, load_cached_model, needs_model
 from .options import (
     DECOMPOSE_POINTS,
     FEATURE_METHODS,
+    LENGTH_UNITS,
     DecomposeOptions,
     LoadOptions,
+    parse_length,
     split_kwargs,
 )
-from .result import Decomposition, cut_decomposition
+from .result import Decomposition, cut_decomposition, merge_parts
+from .scene.objects import is_scene, may_be_scene, object_pieces
 
 #: Modalities whose default feature source is the bundled model (docs/model.md compares the
 #: sources per modality); the others are optimised per shape.
@@ -73,6 +78,23 @@ LAZY_MODULES = (
 )
 
 
+def input_unit(units: str, cloud: OrientedCloud) -> str:
+    """The length unit of ``cloud``'s input coordinates: ``units``, or for "auto" mm on CAD parts
+    (OpenCASCADE reads STEP in mm) and m otherwise."""
+    if units != "auto":
+        return units
+    return "mm" if cloud.modality == "cad" else "m"
+
+
+def resolve_threshold(threshold: float | str, units: str, cloud: OrientedCloud) -> float:
+    """The concavity threshold in ``cloud``'s normalised frame: a number is one already; a length
+    (``"5mm"``) is converted with the input's unit (:func:`input_unit`) and the cloud's scale."""
+    if not isinstance(threshold, str):
+        return float(threshold)
+    unit = input_unit(units, cloud)
+    return parse_length(threshold) / LENGTH_UNITS[unit] / float(cloud.normalization.scale)
+
+
 def resolve_features(features: str, modality: str, model: str | os.PathLike | None = None) -> str:
     """The feature source that ``features`` means for a cloud of ``modality``: "optimize" and
     "model" are themselves; "auto" is the model for the modalities of :data:`MODEL_MODALITIES`
@@ -94,6 +116,7 @@ def preload(features: str = "auto", model: str | os.PathLike | None = None) -> N
     import importlib
 
     uses = {"optimize": ("pointcvx.features.field",), "model": ("pointcvx.model.source",),
+            "fast": ("pointcvx.features.fast",),
             "auto": ("pointcvx.features.field", "pointcvx.model.source")}[features]
     for name in LAZY_MODULES + uses:
         with contextlib.suppress(ImportError):
@@ -108,8 +131,9 @@ def compute_features(cloud: OrientedCloud, solid, *, method: str = "auto", seed:
     """Return (feature source, (n, k) float32 features of ``cloud.points``).
 
     ``method="model"`` runs the feed-forward network from ``model`` (a checkpoint written by
-    ``pointcvx train``), or the bundled one; "auto" picks by the cloud's modality
-    (:func:`resolve_features`).
+    ``pointcvx train``), or the bundled one; "fast" fits the per-shape field of "optimize" with
+    the settings of :mod:`pointcvx.features.fast` (in numpy, no torch; ``steps`` is for
+    "optimize" only); "auto" picks by the cloud's modality (:func:`resolve_features`).
     """
     method = resolve_features(method, cloud.modality, model)
     if method == "model":
@@ -118,9 +142,23 @@ def compute_features(cloud: OrientedCloud, solid, *, method: str = "auto", seed:
         net = load_cached_model(model)
         source = ModelFeatureSource(net, cloud.points, cloud.normals, views=views)
         return source, source.features(cloud.points)
+    if method == "fast":
+        from .features import fast
+
+        if progress is not None:  # step 0: the convex pairs (a time limit is checked here too)
+            progress("features", 0, fast.FAST_STEPS)
+        triplets = fast.sample_fast_triplets(solid, cloud.points, cloud.normals, seed=seed,
+                                             **fast.FAST_TRIPLETS)
+        report = None if progress is None else (
+            lambda step, loss: progress("features", step + 1, fast.FAST_STEPS))
+        source = fast.fit_fast_field(triplets, steps=fast.FAST_STEPS, lr=fast.FAST_LR, seed=seed,
+                                     progress=report)
+        return source, source.features(cloud.points)
     from .features import sample_triplets
     from .features.field import optimize_field
 
+    if progress is not None:  # step 0: the convex pairs (a time limit is checked here too)
+        progress("features", 0, steps)
     triplets = sample_triplets(solid, cloud.points, cloud.normals, seed=seed, **SINGLE_SHAPE_TRIPLETS)
     report = None if progress is None else (lambda step, loss: progress("features", step + 1, steps))
     source = optimize_field(triplets, steps=steps, seed=seed, progress=report)
@@ -149,7 +187,8 @@ def decompose(x: Any, *, progress: Progress | None = None, **options: Any) -> De
         ("auto": the model on splats, optimisation on other inputs; the choice is recorded in
         ``result.params["features"]``), ``n_points`` (:data:`pointcvx.options.DECOMPOSE_POINTS`
         surface points), ``seed`` (same seed, same result), ``target`` (an engine's per-hull
-        caps), ``subsurface`` (leave a splat's sub-surface layer out of the concavity measure).
+        caps), ``subsurface`` (leave a splat's sub-surface layer out of the concavity measure),
+        ``timeout`` (seconds, loading included).
 
     Returns
     -------
@@ -161,13 +200,12 @@ def decompose(x: Any, *, progress: Progress | None = None, **options: Any) -> De
         An option of the wrong type or out of its range, or unusable input.
     TypeError
         An option name that does not exist.
+    TimeLimitError
+        ``timeout`` seconds passed before the result was ready (:mod:`pointcvx.deadline`).
     """
     dec_kw, load_kw = split_kwargs(options)
     load_kw.setdefault("n_points", DECOMPOSE_POINTS)
     dec, load = DecomposeOptions(**dec_kw), LoadOptions(**load_kw)
-    from .decomposition.tree import Decomposer
-    from .solid import solid_for
-
     if needs_model(dec.features, dec.model):
         load_cached_model(dec.model)  # a broken checkpoint fails now, not at the first split
     limits = None
@@ -175,10 +213,36 @@ def decompose(x: Any, *, progress: Progress | None = None, **options: Any) -> De
         from .decomposition.limits import hull_limits
 
         limits = hull_limits(dec.target, dec.max_hull_vertices)  # bad settings fail before any work
-    timings: dict[str, float] = {}
+    deadline = Deadline(dec.timeout)
+    progress = deadline.watch(progress)
     t0 = time.perf_counter()
     cloud = as_cloud(x, load)
-    timings["load"] = time.perf_counter() - t0
+    loaded = time.perf_counter() - t0
+    deadline.check("finding objects")
+    pieces = object_pieces(cloud.points) if may_be_scene(cloud, dec.scene) else []
+    if is_scene(cloud, dec.scene, pieces) and len(pieces) > 0:
+        result = _decompose_scene(cloud, pieces, dec, load, loaded, t0, progress, deadline)
+    else:
+        result = _decompose_cloud(cloud, dec, load, {"load": loaded, "_start": t0}, progress, deadline)
+    if limits is not None:
+        deadline.check("fitting hulls to the engine's caps")
+        result = result.limit_hulls(limits.target, limits.max_vertices, limits.max_faces)
+    deadline.check("finishing")
+    return result
+
+
+def _decompose_cloud(cloud: OrientedCloud, dec: DecomposeOptions, load: LoadOptions, timings: dict,
+                     progress: Progress | None = None,
+                     deadline: Deadline | None = None) -> Decomposition:
+    """One object: its solid, its (lazy) features, the split tree, cut at ``dec``'s settings."""
+    from .decomposition.tree import Decomposer
+    from .solid import solid_for
+
+    timings = dict(timings)
+    given = dec.threshold
+    dec = dataclasses.replace(dec, threshold=resolve_threshold(dec.threshold, dec.units, cloud))
+    deadline = deadline or Deadline(None)
+    deadline.check("building the solid")
     t = time.perf_counter()
     solid = solid_for(cloud)
     surface = None
@@ -193,6 +257,7 @@ def decompose(x: Any, *, progress: Progress | None = None, **options: Any) -> De
     # threshold (a convex part) is one hull without them.
     feature_step = functools.partial(_feature_array, cloud, solid, method=features, seed=load.seed,
                                      model=dec.model, views=dec.views)
+    deadline.check("building the split tree")
     t = time.perf_counter()
     with threadpool_limits(1):
         decomposer = Decomposer(cloud.points, cloud.normals, feature_step, solid, split=dec.split,
@@ -200,11 +265,25 @@ def decompose(x: Any, *, progress: Progress | None = None, **options: Any) -> De
                                 surface=surface)
     timings["tree"] = time.perf_counter() - t
     params = {**dec.as_dict(), **load.as_dict(), "features": features, "split": decomposer.method}
-    timings["_start"] = t0
-    result = cut_decomposition(decomposer, cloud, params, timings, progress=progress)
-    if limits is not None:
-        result = result.limit_hulls(limits.target, limits.max_vertices, limits.max_faces)
-    return result
+    if isinstance(given, str):  # a length: what was asked, and the unit it was read in
+        params.update(threshold_given=given, units=input_unit(dec.units, cloud))
+    return cut_decomposition(decomposer, cloud, params, timings, progress=progress)
+
+
+def _decompose_scene(cloud: OrientedCloud, pieces: list[np.ndarray], dec: DecomposeOptions,
+                     load: LoadOptions, loaded: float, t0: float,
+                     progress: Progress | None = None,
+                     deadline: Deadline | None = None) -> Decomposition:
+    """A scene: each object (a connected piece of the isolated cloud) decomposed in its own
+    normalised frame, so the threshold is relative to each object's size, then merged."""
+    parts = []
+    for k, idx in enumerate(pieces):
+        obj = cloud.subset(idx).normalized()
+        obj.info["object"] = k
+        report = None if progress is None else (
+            lambda stage, done, total, k=k: progress(f"object {k + 1}/{len(pieces)} {stage}", done, total))
+        parts.append(_decompose_cloud(obj, dec, load, {"load": 0.0}, report, deadline))
+    return merge_parts(parts, pieces, cloud, {"load": loaded, "_start": t0})
 
 
 def _signature() -> inspect.Signature:

@@ -74,6 +74,12 @@ class Decomposition:
         Seconds per stage.
     params : dict
         Every setting that produced the result, seed included.
+    objects : list of dict, optional
+        For a scene (``decompose(..., scene=...)``): per object, its ``name``, the indices of its
+        ``hulls``, its ``points`` count, its ``bounds`` (input units) and ``max_concavity``. Each
+        object was decomposed in its own normalised frame. None for a single object.
+    removed_points : (m, 3) float64, optional
+        What isolation removed from the input (support plane, clutter), in input units.
     """
 
     hulls: list[ConvexHull]
@@ -82,17 +88,36 @@ class Decomposition:
     tree: list[dict]
     timings: dict[str, float]
     params: dict[str, Any]
+    objects: list[dict] | None = None
     _decomposer: Any = field(default=None, repr=False)
     _features: np.ndarray | None = field(default=None, repr=False)
+    _parts: list | None = field(default=None, repr=False)
 
     @property
     def features(self) -> np.ndarray:
-        """(n, k) float32 features of ``cloud.points``."""
+        """(n, k) float32 features of ``cloud.points`` (a scene's objects each have their own)."""
         if self._features is None:
-            if self._decomposer is None:
+            if self._parts is not None:
+                dims = {p.features.shape[1] for _, p in self._parts}
+                out = np.zeros((len(self.labels), max(dims)), dtype=np.float32)
+                for idx, part in self._parts:
+                    out[idx, : part.features.shape[1]] = part.features
+                self._features = out
+            elif self._decomposer is None:
                 raise OutputError("this decomposition holds no features")
-            self._features = self._decomposer.features.astype(np.float32)
+            else:
+                self._features = self._decomposer.features.astype(np.float32)
         return self._features
+
+    @property
+    def removed_points(self) -> np.ndarray | None:
+        removed = self.cloud.removed
+        return None if removed is None else self.cloud.normalization.inverse(removed)
+
+    @property
+    def support(self) -> dict | None:
+        """The support plane isolation found (``normal``, ``offset`` in input units), or None."""
+        return self.cloud.info.get("isolation", {}).get("support_plane")
 
     def __len__(self) -> int:
         return len(self.hulls)
@@ -139,6 +164,10 @@ class Decomposition:
         Splits already made are reused; deeper ones are computed on demand. Features are never
         recomputed (a shape that needed no split computes them here if the new cut splits).
         """
+        if self._parts is not None:
+            parts = [part.recut(threshold, max_hulls, merge) for _, part in self._parts]
+            return merge_parts(parts, [idx for idx, _ in self._parts], self.cloud,
+                               {"load": self.timings.get("load", 0.0)})
         if self._decomposer is None:
             raise OutputError("this decomposition no longer holds its split tree (it was loaded "
                               "from disk); decompose again to re-cut it")
@@ -208,6 +237,24 @@ class Decomposition:
         params["hull_limits"] = limits.as_dict()
         return replace(self, hulls=hulls, timings=timings, params=params)
 
+    def hull_offsets(self, samples: int = 2000) -> np.ndarray:
+        """(h,) float: how far each hull reaches out of the input, in input units: the largest
+        distance from its surface (``samples`` area-weighted samples and its vertices) to the
+        nearest input point."""
+        from scipy.spatial import cKDTree
+
+        from .decomposition.hull import sample_triangles
+
+        tree = cKDTree(self.cloud.normalization.inverse(self.cloud.points))
+        rng = np.random.default_rng(self.seed)
+        out = np.zeros(len(self.hulls))
+        for i, h in enumerate(self.hulls):
+            probe = h.vertices
+            if len(h.faces):
+                probe = np.concatenate([probe, sample_triangles(h.vertices[h.faces], samples, rng)[0]])
+            out[i] = float(tree.query(probe)[0].max()) if len(probe) else 0.0
+        return out
+
     @property
     def added_volume(self) -> float:
         """Volume the engine limits added to the hulls, in input units cubed (0 without limits)."""
@@ -217,22 +264,30 @@ class Decomposition:
     def export(self, path: str | os.PathLike, format: str | None = None, *, overwrite: bool = False,
                per_hull: bool = False, target: str | None = None,
                max_hull_vertices: int | None = None, free_joint: bool = True,
-               density: float = 1000.0) -> list[Path]:
+               density: float = 1000.0, up="auto") -> list[Path]:
         """Write the hulls; return the files written, the main one first.
 
         ``format`` (default: from ``path``'s suffix): ``"obj"`` (.obj: one file, an ``o
         hull_NNN`` object per hull; with ``per_hull``, a folder or a path without suffix: one
-        ``hull_NNN.obj`` each), ``"stl"`` (.stl: one ``hull_NNN.stl`` per hull in the folder
-        named by the stem), ``"glb"``/``"gltf"`` (a scene, a node per hull), ``"urdf"`` (.urdf)
-        and ``"mjcf"`` (.xml, .mjcf): a folder named by the stem holding the robot file and an OBJ
-        per hull (plus the input mesh as visual), ``"usda"`` (.usda, .usd: one USD text file, a
-        rigid body with a convex-hull collider Mesh per hull and the input mesh as visual),
-        ``"json"`` (.json: the report). See :mod:`pointcvx.export` for the layouts. ``target`` /
-        ``max_hull_vertices`` apply :meth:`limit_hulls` first. ``free_joint`` (MJCF) and
-        ``density`` (URDF, MJCF, USD mass; input units) shape the robot files.
+        ``hull_NNN.obj`` each), ``"stl"`` (``NAME.stl``: one ``hull_NNN.stl`` per hull in the
+        folder ``NAME_stl/``), ``"glb"``/``"gltf"`` (a scene, a node per hull), ``"urdf"``
+        (``NAME.urdf``) and ``"mjcf"`` (``NAME.xml``, ``NAME.mjcf``): the folder ``NAME_urdf/`` or
+        ``NAME_mjcf/`` holding the robot file and an OBJ per hull (plus the input mesh as visual),
+        ``"usda"`` (.usda, .usd: one USD text file, a rigid body with a convex-hull collider Mesh
+        per hull and the input mesh as visual), ``"json"`` (.json: the report). A path without a
+        suffix (or an existing folder) names the folder itself. See :mod:`pointcvx.export` for
+        the layouts. ``target`` / ``max_hull_vertices`` apply :meth:`limit_hulls` first.
+        ``free_joint`` (MJCF) and ``density`` (URDF, MJCF, USD mass; input units) shape the robot
+        files; ``up`` (URDF, MJCF, USD: "auto", an axis such as "-y", or a (3,) direction) is the
+        input's up, turned to +z there while the hull coordinates stay in the input's frame
+        ("auto": the support plane isolation found, else +z). A scene (``objects``) is one body
+        per object on its static support plane.
 
-        Writes are atomic and all-or-nothing; the input file is never written over and existing
-        files are kept (:class:`~pointcvx.errors.OutputError`) unless ``overwrite``.
+        Outputs appear whole or not at all, even if the process is killed, with the user's umask.
+        A folder output is pointcvx's alone: ``overwrite`` replaces a previous one whole (no stale
+        files), and a folder holding files pointcvx did not write is refused, never emptied. The
+        input file is never written over, and existing outputs are kept
+        (:class:`~pointcvx.errors.OutputError`) unless ``overwrite``.
         """
         from .export import export_decomposition
 
@@ -240,7 +295,7 @@ class Decomposition:
         if target is not None or max_hull_vertices is not None:
             result = self.limit_hulls(target, max_hull_vertices)
         return export_decomposition(result, path, format, overwrite=overwrite, per_hull=per_hull,
-                                    free_joint=free_joint, density=density)
+                                    free_joint=free_joint, density=density, up=up)
 
     def report(self) -> dict[str, Any]:
         """The JSON report (per hull: vertices, faces, volume, added volume, concavity; totals;
@@ -268,6 +323,11 @@ def cut_decomposition(decomposer, cloud: OrientedCloud, params: dict, timings: d
     t = time.perf_counter()
     report = None if progress is None else (
         lambda n, worst: progress("split", n, params["max_hulls"]))
+    if decomposer.will_split(params["threshold"], params["max_hulls"]):
+        # The splits' clustering loads scikit-learn's OpenMP runtime; threadpoolctl limits only
+        # the runtimes already loaded, so load it before the limit (without torch loaded first,
+        # k-means otherwise ran on every core: 12-14 s instead of 2 s on chair.off, 2 cores).
+        import sklearn.cluster  # noqa: F401
     with threadpool_limits(1):  # many small BLAS calls: threads only add overhead
         leaves = decomposer.cut(params["threshold"], params["max_hulls"], progress=report)
         timings["split"] = time.perf_counter() - t
@@ -293,3 +353,33 @@ def cut_decomposition(decomposer, cloud: OrientedCloud, params: dict, timings: d
         timings["total"] = sum(v for k, v in timings.items() if k != "total")
     return Decomposition(hulls, labels, cloud, decomposer.tree.as_table(), timings, params,
                          _decomposer=decomposer)
+
+
+def merge_parts(parts: list[Decomposition], pieces: list[np.ndarray], cloud: OrientedCloud,
+                timings: dict) -> Decomposition:
+    """One decomposition of a scene from its objects' decompositions: ``parts[k]`` decomposed the
+    points ``pieces[k]`` ((m_k,) int indices into ``cloud``) in its own frame. Hulls keep the
+    input's units; labels index the merged hull list (-1 for points of no object)."""
+    timings = dict(timings)
+    start = timings.pop("_start", None)
+    hulls: list[ConvexHull] = []
+    labels = np.full(len(cloud), -1, dtype=np.int64)
+    tree: list[dict] = []
+    objects = []
+    for k, (part, idx) in enumerate(zip(parts, pieces, strict=True)):
+        first = len(hulls)
+        labels[idx] = part.labels + first
+        hulls.extend(part.hulls)
+        tree.extend({**node, "object": k} for node in part.tree)
+        pts = part.cloud.normalization.inverse(part.cloud.points)
+        objects.append({"name": f"object_{k:02d}", "hulls": list(range(first, len(hulls))),
+                        "points": int(len(idx)),
+                        "bounds": [pts.min(axis=0).tolist(), pts.max(axis=0).tolist()],
+                        "max_concavity": round(part.max_concavity, 6)})
+        for key, value in part.timings.items():
+            if key != "total":
+                timings[key] = timings.get(key, 0.0) + value
+    timings["total"] = (time.perf_counter() - start) if start is not None else sum(timings.values())
+    params = {**parts[0].params, "scene": True, "objects": len(parts)} if parts else {"scene": True}
+    return Decomposition(hulls, labels, cloud, tree, timings, params, objects=objects,
+                         _parts=list(zip(pieces, parts, strict=True)))

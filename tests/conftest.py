@@ -13,6 +13,20 @@ DATA = (ROOT / ".." / "shared" / "data").resolve()
 SAMPLES = ROOT / "io"
 
 
+def load_tool(name: str):
+    """The module ``tools/NAME.py`` (tools are scripts, not a package), loaded once per session."""
+    import importlib.util
+    import sys
+
+    if name in sys.modules:
+        return sys.modules[name]
+    spec = importlib.util.spec_from_file_location(name, ROOT / "tools" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module  # dataclasses look their module up by name
+    spec.loader.exec_module(module)
+    return module
+
+
 def dev_files(category: str | None = None) -> list[Path]:
     """Every file of ``shared/data/dev`` (or one category of it), sorted."""
     base = DATA / "dev"

@@ -88,6 +88,75 @@ def test_every_method_gives_a_row_with_finite_metrics(run):
     assert float(_one(rows, "pointcvx", "fixed")["peak_mb"]) > coacd_mb
 
 
+def test_one_shot_times_are_real_and_beside_the_warm_ones(run):
+    rows = run["rows"]
+    for r in rows:
+        if r["setting"] == "fixed":
+            # a one-shot run of every method, with the warm run's hull count (else oneshot_error)
+            assert r["oneshot_error"] == "", r
+            assert 0.0 < float(r["oneshot_seconds"]) < 300.0, r
+        else:  # the matched searches are timed warm only
+            assert (r["oneshot_seconds"], r["oneshot_error"]) == ("", ""), r
+    ours = _one(rows, "pointcvx", "fixed")
+    # the whole process also pays the interpreter, the imports (torch, open3d, scikit-learn...),
+    # and reading and writing the files: seconds more than the warm call on this small block
+    assert float(ours["oneshot_seconds"]) > float(ours["seconds"]) + 0.5
+    text = (run["out"] / "summary.md").read_text()
+    head = "Time: one-shot (whole process) and warm (the method's call)"
+    assert head in text
+    table = text.split(head)[1].splitlines()
+    line = next(ln for ln in table if ln.startswith("| pointcvx | fixed | 0.1 | 1 | "))
+    once, warm = (float(x) for x in line.split("|")[5:7])
+    assert once == pytest.approx(float(ours["oneshot_seconds"]), rel=1e-3)
+    assert warm == pytest.approx(float(ours["seconds"]), rel=1e-3)
+    assert line.endswith("| 1 | 1 |")  # pointcvx over itself
+    coacd = _one(rows, "coacd", "fixed")
+    ratio = float(next(ln for ln in table if ln.startswith("| coacd | fixed | – | 1 | ")).split("|")[7])
+    assert ratio == pytest.approx(float(coacd["oneshot_seconds"]) / float(ours["oneshot_seconds"]),
+                                  rel=5e-3)  # printed to 3 digits
+    lines = bench.final_summary(bench.BenchReport(rows, 0, run["out"])).splitlines()
+    assert any(ln.lstrip().startswith("pointcvx fixed 0.1") and "one-shot s " in ln for ln in lines)
+
+
+def test_results_without_the_one_shot_columns_still_read_and_summarise(run, tmp_path):
+    # a results.csv written before the one-shot columns existed
+    old = [c for c in bench.COLUMNS if not c.startswith("oneshot_")]
+    path = tmp_path / "results.csv"
+    with open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, old, extrasaction="ignore", lineterminator="\n")
+        w.writeheader()
+        w.writerows(run["rows"])
+    rows = bench.read_results(path)
+    assert len(rows) == len(run["rows"]) and all(r["oneshot_seconds"] == "" for r in rows)
+    text = bench.summarize(rows)
+    assert "median seconds of the baseline / median seconds of pointcvx" in text
+    assert "one-shot" not in text
+
+
+def test_one_shot_runs_pointcvx_at_the_bench_settings(tmp_path):
+    from pointcvx.apps.bench.oneshot import decompose_flags
+    from pointcvx.errors import InputError
+    from pointcvx.flags import options_from_args
+    from pointcvx.options import DecomposeOptions, LoadOptions
+
+    opts = bench.BenchOptions.create(features="model", n_points=3000, seed=7, merge=False,
+                                     blend=0.25, max_hulls=9, outlier_std=1.75)
+    params = {**opts.decompose.as_dict(), **opts.load.as_dict(), "threshold": 0.05}
+    flags = decompose_flags(params)
+    assert "--no-merge" in flags and flags[flags.index("--threshold") + 1] == "0.05"
+    args = build_parser().parse_args(["decompose", "in.obj", "-o", "out.obj", *flags])
+    assert options_from_args(args, DecomposeOptions).as_dict() == {**opts.decompose.as_dict(),
+                                                                   "threshold": 0.05}
+    assert options_from_args(args, LoadOptions) == opts.load
+    assert decompose_flags(bench.BenchOptions().decompose.as_dict()) == []  # defaults: no flag
+    # an API-only setting cannot be run as the command: refused before any run, unless one-shot
+    # runs are off
+    api_only = bench.BenchOptions.create(mesh_points=5000)
+    with pytest.raises(InputError, match="mesh_points"):
+        api_only.check()
+    bench.BenchOptions.create(mesh_points=5000, oneshot=False).check()
+
+
 def test_hull_files_exist_load_and_reproduce_the_metrics(run):
     out = run["out"]
     rows = run["rows"]
@@ -211,6 +280,7 @@ def test_parser_defaults_and_options():
     assert (opts.methods, opts.thresholds, opts.match, opts.timeout, opts.decompose.features) == (
         ("pointcvx", "coacd", "vhacd"), (0.1,), True, 600.0, "auto")
     assert opts == bench.BenchOptions()  # the flags' defaults are the API's
+    assert opts.oneshot and not bench_options(_args(["a", "-o", "o", "--no-oneshot"])).oneshot
     opts = bench_options(_args(["a", "--output", "o", "--methods", "PointCVX, vhacdx",
                                 "--thresholds", "0.05,0.2", "--no-match", "--timeout", "5",
                                 "--features", "model"]))

@@ -80,7 +80,7 @@ def test_bad_input_api_raises_typed_error(tmp_path, case):
 
 def test_bad_inputs_in_a_real_process_never_trace_back(tmp_path):
     cases = bad_inputs(str(tmp_path))
-    for name in ("truncated ply", "unknown", "nan", "collinear"):
+    for name in ("truncated ply", "unknown", "nan", "collinear", "fifo", "huge count", "huge coordinates"):
         res = run_cli("info", cases[name][0])
         assert res.returncode == EXIT_INPUT, (name, res.stderr)
         assert "Traceback" not in res.stderr and len(res.stderr.strip().splitlines()) == 1

@@ -1,5 +1,6 @@
 """Every real shape in shared/data/dev loads, through the API and through the CLI, into an
-oriented cloud with unit normals in [-1, 1]^3."""
+oriented cloud with unit normals in [-1, 1]^3; so do the raw sensor frames of shared/data/raw_scans,
+their NaN holes dropped and counted."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ import numpy as np
 import pytest
 
 import pointcvx
-from conftest import dev_files
+from conftest import DATA, dev_files
 from pointcvx.cli import main
 
 FILES = dev_files()
@@ -47,3 +48,37 @@ def test_dev_file_loads_through_api_and_cli(path, tmp_path, capsys):
     # The CLI writes input units: same points as the API's cloud mapped back (same seed).
     np.testing.assert_allclose(np.c_[v["x"], v["y"], v["z"]], back, rtol=1e-5,
                                atol=1e-5 * float(np.abs(back).max()))
+
+
+RAW = sorted((DATA / "raw_scans").glob("*.pcd"))
+
+
+def _non_finite_rows(path) -> tuple[int, int]:
+    """(rows, rows with a NaN or infinite coordinate) of a PCD, as open3d reads it."""
+    from pointcvx.syslibs import import_open3d
+
+    o3d = import_open3d()
+    points = np.asarray(o3d.io.read_point_cloud(str(path), remove_nan_points=False).points)
+    return len(points), int((~np.isfinite(points).all(axis=1)).sum())
+
+
+def test_raw_scans_are_all_there():
+    assert [p.stem for p in RAW] == ["five_people", "kinect_frame", "lamppost", "office1"]
+
+
+@pytest.mark.parametrize("path", RAW, ids=[p.stem for p in RAW])
+def test_raw_scan_loads_with_its_nan_holes_dropped(path, capsys):
+    # Organised depth frames mark "no measurement" with NaN: those rows are dropped and counted.
+    rows, holes = _non_finite_rows(path)
+    cloud = pointcvx.load(path, n_points=2000, seed=1)
+    assert cloud.modality == "scan" and cloud.info["format"] == "pcd"
+    assert cloud.info["non_finite_dropped"] == holes
+    assert cloud.info["input_points"] == rows - holes
+    assert np.isfinite(cloud.points).all() and np.isfinite(cloud.normals).all()
+    assert 100 <= len(cloud) <= 2000
+    if path.stem != "lamppost":  # 640 x 480 Kinect frames with tens of thousands of holes
+        assert holes > 30000 and cloud.info["organized"] == [640, 480]
+    assert len(cloud.info["viewpoint"]) == 7
+    assert main(["info", str(path), "-n", "2000", "--seed", "1", "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["non_finite_dropped"] == holes and report["points"] == len(cloud)

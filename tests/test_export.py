@@ -188,7 +188,7 @@ def test_every_format_writes_what_it_promises(result, tmp_path):
 
 def test_urdf_has_a_collision_per_hull_and_the_input_as_visual(result, tmp_path, source):
     files = result.export(tmp_path / "torus.urdf", density=500.0)
-    folder = tmp_path / "torus"
+    folder = tmp_path / "torus_urdf"
     assert files[0] == folder / "torus.urdf" and all(f.parent == folder for f in files)
     root = ET.parse(files[0]).getroot()
     (link,) = root.findall("link")
@@ -220,7 +220,7 @@ def test_mjcf_follows_obj2mjcf_and_mujoco_loads_it(result, tmp_path):
     import mujoco
 
     files = result.export(tmp_path / "torus.mjcf")
-    assert files[0] == tmp_path / "torus" / "torus.xml"
+    assert files[0] == tmp_path / "torus_mjcf" / "torus.xml"
     model = mujoco.MjModel.from_xml_path(str(files[0]))
     groups = Counter(int(g) for g in model.geom_group)
     assert groups == {2: 1, 3: len(result)}
@@ -242,7 +242,7 @@ def test_robot_files_thicken_flat_hulls_so_simulators_take_them(result, tmp_path
     files = odd.export(tmp_path / "odd.xml")
     model = mujoco.MjModel.from_xml_path(str(files[0]))  # MuJoCo refuses coplanar meshes
     assert int((model.geom_group == 3).sum()) == len(odd)
-    slab = trimesh.load(tmp_path / "odd" / f"odd_collision_{len(result)}.obj", process=False)
+    slab = trimesh.load(tmp_path / "odd_mjcf" / f"odd_collision_{len(result)}.obj", process=False)
     assert slab.is_watertight and slab.volume > 0
     assert outside_distance(flat.vertices, slab.vertices, slab.faces).max() <= 1e-12
 
@@ -262,26 +262,18 @@ def test_format_dispatch_and_bad_choices(result, tmp_path):
 
 
 def test_folder_exports_are_all_or_nothing(result, tmp_path):
-    folder = tmp_path / "obj"
-    folder.mkdir()
-    keep = folder / "obj_collision_3.obj"
-    keep.write_text("mine")
-    with pytest.raises(pointcvx.OutputError, match="exists"):
-        result.export(tmp_path / "obj.urdf")
-    assert sorted(p.name for p in folder.iterdir()) == [keep.name] and keep.read_text() == "mine"
-    files = result.export(tmp_path / "obj.urdf", overwrite=True)
-    assert keep in files and keep.read_text() != "mine"
-    assert not list(tmp_path.rglob(".*"))  # no temporary files left behind
     (tmp_path / "blocked").write_text("a file, not a folder")
     with pytest.raises(pointcvx.OutputError, match="cannot create the output folder"):
         result.export(tmp_path / "blocked" / "x.xml")
-    # a failure half-way through writing leaves nothing behind: with a 230-character name the
-    # robot file's temporary name fits the file system's 255 but the first hull's does not
-    name = "n" * 230
+    # a failure half-way through writing leaves nothing behind: with a 240-character name the
+    # folder, the robot file and the temporary names fit the file system's 255 bytes, but the
+    # first hull's file, NAME_collision_0.obj, does not
+    name = "n" * 240
     with pytest.raises(pointcvx.OutputError, match="cannot write"):
         result.export(tmp_path / f"{name}.urdf")
-    assert not (tmp_path / name).exists()
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["blocked", "obj"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["blocked"]  # no folder, no temporary
+    assert result.export(tmp_path / "robot.urdf")[0].is_file()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["blocked", "robot_urdf"]
 
 
 def test_export_never_writes_over_the_input(result, source):
@@ -305,7 +297,7 @@ def test_cli_target_format_and_refusals(source, tmp_path, capsys, monkeypatch):
     args = ["decompose", str(source), "--features", "model", "-n", "3000"]
     assert main([*args, "--format", "mjcf", "--target", "physx-gpu", "--json"]) == 0
     summary = json.loads(capsys.readouterr().out)
-    main_file = tmp_path / "torus_hulls" / "torus_hulls.xml"
+    main_file = tmp_path / "torus_hulls_mjcf" / "torus_hulls.xml"
     assert summary["output"] == str(main_file) and main_file.is_file()
     assert summary["format"] == "mjcf" and summary["max_hull_vertices"] <= 64
     assert summary["added_volume"] > 0 and summary["hull_limits"]["target"] == "physx-gpu"

@@ -15,14 +15,15 @@ MAX_LINES = 700
 
 #: Stages, lowest first: a module may import its own stage and the ones below, never above.
 STAGES = [
-    ("errors", "version", "options", "flags", "syslibs", "progress", "embree"),
+    ("errors", "version", "options", "flags", "syslibs", "progress", "embree", "deadline"),
     ("cloud",),
+    ("scene",),
     ("io",),
     ("solid",),
     ("features", "training", "model"),
     ("decomposition",),
     ("result", "export"),
-    ("pipeline", "evaluate"),
+    ("pipeline", "evaluate", "view"),
     ("apps",),
     ("cli", "__main__", "__init__"),
 ]

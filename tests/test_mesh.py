@@ -8,6 +8,7 @@ import trimesh
 
 import pointcvx
 from conftest import DATA
+from pointcvx.errors import InputError
 from pointcvx.io.mesh import clean_mesh, cloud_from_mesh, read_mesh, winding_signs
 from pointcvx.io.sniff import detect
 
@@ -136,3 +137,168 @@ def test_gltf_scene_is_flattened_with_transforms(tmp_path):
     np.testing.assert_allclose(lo, [-0.5, -0.5, -0.5], atol=1e-6)
     np.testing.assert_allclose(hi, [5.5, 0.5, 0.5], atol=1e-6)
     assert cloud.info["components"] == 2
+
+
+# ------------------------------------------------------------------------- hostile meshes
+def _obj(mesh: trimesh.Trimesh, extra: str = "") -> str:
+    return ("".join(f"v {a} {b} {c}\n" for a, b, c in mesh.vertices)
+            + "".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in mesh.faces) + extra)
+
+
+def test_obj_face_index_0_names_its_line(tmp_path):
+    # OBJ counts from 1; trimesh read 0 as -1 (the last vertex) and loaded the file silently
+    box = trimesh.creation.box()
+    path = tmp_path / "zero.obj"
+    path.write_text(_obj(box, "f 1 0 2\n"))
+    with pytest.raises(InputError, match=r"zero\.obj: corrupted OBJ: line 21 has a face with vertex index 0"):
+        pointcvx.load(path)
+    path.write_text(_obj(box, "v 0 0 0\nf 10 20 1\n").replace("f 10 20 1", "f 1 2 3"))
+    assert pointcvx.load(path, n_points=100).modality == "mesh"  # a vertex at 0 0 0 is no index
+
+
+def test_unused_non_finite_vertices_are_dropped_used_ones_refused(tmp_path):
+    box = trimesh.creation.box()
+    path = tmp_path / "box.ply"  # PLY keeps every vertex (trimesh's OBJ reader drops unused ones)
+    v = np.vstack([box.vertices, [[np.nan, 0, 0]]])
+    path.write_text("ply\nformat ascii 1.0\nelement vertex 9\nproperty double x\nproperty double y\n"
+                    "property double z\nelement face 12\nproperty list uchar int vertex_indices\nend_header\n"
+                    + "".join(f"{a} {b} {c}\n" for a, b, c in v)
+                    + "".join(f"3 {a} {b} {c}\n" for a, b, c in box.faces))
+    cloud = pointcvx.load(path, n_points=500, normalize=False)
+    assert cloud.info["non_finite_dropped"] == 1 and np.isclose(cloud.mesh.area, box.area)
+    path = tmp_path / "box.obj"
+    path.write_text(_obj(box).replace("v ", "v nan ", 1))  # a NaN vertex of faces
+    with pytest.raises(InputError, match=r"1 of 8 mesh vertices used by faces have NaN"):
+        pointcvx.load(path)
+    path.write_text(_obj(trimesh.Trimesh(box.vertices * 1e154, box.faces, process=False)))
+    with pytest.raises(InputError, match=r"of \d+ mesh vertices used by faces lie beyond 1e\+10"):
+        pointcvx.load(path)
+
+
+def test_binary_stl_with_a_wrong_triangle_count_says_so(tmp_path):
+    data = trimesh.creation.box().export(file_type="stl")
+    for count in (5, 10**6, 0):
+        path = tmp_path / f"count{count}.stl"
+        path.write_bytes(data[:80] + np.uint32(count).tobytes() + data[84:])
+        with pytest.raises(InputError, match=rf"count{count}\.stl: truncated or corrupted binary STL: "
+                           rf"its header declares {count} triangles \({84 + 50 * count} bytes\), the file "
+                           r"has 684"):
+            pointcvx.load(path)
+    (tmp_path / "cut.stl").write_bytes(data[:300])
+    with pytest.raises(InputError, match="truncated or corrupted binary STL"):
+        pointcvx.load(tmp_path / "cut.stl")
+
+
+def _gltf(buffer: dict, views: list[dict], count: int = 3) -> dict:
+    return {"asset": {"version": "2.0"}, "scene": 0, "scenes": [{"nodes": [0]}], "nodes": [{"mesh": 0}],
+            "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}]}], "buffers": [buffer],
+            "bufferViews": views,
+            "accessors": [{"bufferView": 0, "componentType": 5126, "count": count, "type": "VEC3",
+                           "min": [0, 0, 0], "max": [1, 1, 0]}]}
+
+
+def _glb(tree: dict, binary: bytes) -> bytes:
+    import json
+    import struct
+
+    js = json.dumps(tree).encode()
+    js += b" " * (-len(js) % 4)
+    binary += bytes(-len(binary) % 4)
+    body = struct.pack("<II", len(js), 0x4E4F534A) + js + struct.pack("<II", len(binary), 0x004E4942) + binary
+    return struct.pack("<4sII", b"glTF", 2, 12 + len(body)) + body
+
+
+def test_glb_whose_sizes_lie_is_an_input_error(tmp_path):
+    # trimesh's glTF reader asserted these (a bare AssertionError, reported as an internal error)
+    tri = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], dtype="<f4").tobytes()
+    cases = {
+        "short": (_gltf({"byteLength": 36}, [{"buffer": 0, "byteLength": 36}]), tri[:12],
+                  "buffer 0 declares 36"),
+        "offset": (_gltf({"byteLength": 36}, [{"buffer": 0, "byteOffset": 2**40, "byteLength": 36}]), tri,
+                   "lies outside buffer 0"),
+        "count": (_gltf({"byteLength": 36}, [{"buffer": 0, "byteLength": 36}], count=10**12), tri,
+                  "declares 1000000000000 elements"),
+    }
+    for name, (tree, binary, fragment) in cases.items():
+        path = tmp_path / f"{name}.glb"
+        path.write_bytes(_glb(tree, binary))
+        with pytest.raises(InputError, match=rf"{name}\.glb: .*{fragment}"):
+            pointcvx.load(path)
+    path = tmp_path / "ok.glb"
+    path.write_bytes(_glb(_gltf({"byteLength": 36}, [{"buffer": 0, "byteLength": 36}]), tri))
+    assert pointcvx.load(path, n_points=100).modality == "mesh"
+    path.write_bytes(b"glTF" + (2).to_bytes(4, "little") + (1000).to_bytes(4, "little") + b"[" * 200)
+    with pytest.raises(InputError, match="truncated GLB"):
+        pointcvx.load(path)
+
+
+def test_gltf_buffer_uris_outside_the_folder_are_blocked_saying_why(tmp_path):
+    import json
+    import os
+
+    tri = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], dtype="<f4").tobytes()
+    (tmp_path / "outside.bin").write_bytes(tri)
+    folder = tmp_path / "model"
+    folder.mkdir()
+    (folder / "tri.bin").write_bytes(tri)
+    os.mkfifo(folder / "pipe.bin")  # reading it would block forever
+    views = [{"buffer": 0, "byteLength": 36}]
+    cases = {"../outside.bin": "climbs out with '..'", str(tmp_path / "outside.bin"): "absolute path",
+             "file:///etc/passwd": "is a URL", "http://example.com/x.bin": "is a URL",
+             "pipe.bin": "is not a regular file", "nope.bin": "is missing"}
+    for uri, why in cases.items():
+        path = folder / "scene.gltf"
+        path.write_text(json.dumps(_gltf({"byteLength": 36, "uri": uri}, views)))
+        with pytest.raises(InputError) as info:
+            pointcvx.load(path)
+        message = str(info.value)
+        assert why in message and uri[:40] in message, message
+        assert "trimesh" not in message and "allow" not in message and "\n" not in message
+    path.write_text(json.dumps(_gltf({"byteLength": 36, "uri": "tri.bin"}, views)))
+    assert pointcvx.load(path, n_points=100).modality == "mesh"
+
+
+def test_outward_test_on_a_triangle_soup_works_on_a_bounded_sample(tmp_path, monkeypatch):
+    # Rays through a soup of overlapping triangles cross it hundreds of times: the outward test
+    # scores a sample sized to the crossing budget instead of every face (1.5M random triangles
+    # kept `info` busy for minutes).
+    from pointcvx.io import mesh as M
+
+    rng = np.random.default_rng(0)
+    n = 20000
+    soup = trimesh.Trimesh((rng.random((n, 1, 3)) + 0.05 * rng.normal(size=(n, 3, 3))).reshape(-1, 3),
+                           np.arange(3 * n).reshape(-1, 3), process=False)
+    monkeypatch.setattr(M, "ORIENT_CROSSINGS", 1_000_000)
+    sample = M.scored_faces(soup, 8, 0)
+    assert sample is not None and M.ORIENT_PILOT <= len(sample) < n // 2
+    out, _, method = M.orient_outward(soup)
+    assert f"from {len(sample)} of {n} faces" in method and len(out.faces) == n
+
+
+def test_a_sampled_outward_test_still_finds_the_outside(monkeypatch):
+    # The dragon cut into 27 loose pieces, each wound at random: with a tenth of its faces
+    # scored (round the pieces), every piece still turns outward.
+    from scipy.spatial import cKDTree
+
+    from pointcvx.io import mesh as M
+
+    truth = _true_mesh("scans/dragon_50k.ply")
+    centres = truth.triangles_center
+    cell = np.floor((centres - truth.bounds[0]) / (truth.extents + 1e-9) * 3).astype(int)
+    cell = cell @ [9, 3, 1]
+    rng = np.random.default_rng(4)
+    pieces = []
+    for c in np.unique(cell):
+        piece = truth.submesh([np.flatnonzero(cell == c)], append=True)
+        middle = piece.vertices.mean(axis=0)
+        piece.vertices = middle + 0.995 * (piece.vertices - middle)  # loose: a gap to the next
+        if rng.random() < 0.5:
+            piece.invert()
+        pieces.append(piece)
+    bad = trimesh.util.concatenate(pieces)
+    monkeypatch.setattr(M, "ORIENT_FACES", len(bad.faces) // 10)
+    cloud = cloud_from_mesh(bad, n_points=5000, seed=3)
+    assert f"from {len(bad.faces) // 10} of {len(bad.faces)} faces" in cloud.info["normals"]
+    assert cloud.info["components"] >= 27
+    _, nearest = cKDTree(centres).query(cloud.points)
+    assert (np.einsum("ij,ij->i", truth.face_normals[nearest], cloud.normals) > 0).mean() > 0.98

@@ -44,6 +44,10 @@ def test_every_decomposition_and_loading_option_is_a_flag_of_each_command(comman
             spec = spec_of(f)
             if spec.flag is None:
                 continue
+            if f.name == "timeout" and command in ("batch", "bench"):
+                # their own --timeout bounds each asset's or run's whole process
+                assert actions["timeout"].default == 600.0
+                continue
             assert f.name in actions, f"{command} lacks the flag of {f.name}"
             action = actions[f.name]
             want = DECOMPOSE_POINTS if f.name == "n_points" else f.default
@@ -171,3 +175,34 @@ def test_batch_and_bench_options_are_made_from_the_same_declarations():
         BatchOptions.create(max_hulls=0)
     with pytest.raises(TypeError):
         BenchOptions.create(treshold=0.1)
+
+
+def test_a_threshold_can_be_a_length_in_the_inputs_units():
+    """5 mm on a mesh in metres whose longest half-side is s: 0.005 / s in the normalised frame;
+    with the coordinates read as centimetres the mug is a hundredth the size, so the same 5 mm is
+    a hundred times coarser."""
+    from pointcvx.options import parse_length
+
+    assert parse_length("5mm") == pytest.approx(0.005) and parse_length("0.5 in") == pytest.approx(0.0127)
+    fine = pointcvx.decompose(MUG, threshold="5mm", features="model", n_points=2000, max_hulls=4)
+    scale = fine.cloud.normalization.scale
+    assert fine.params["threshold"] == pytest.approx(0.005 / scale)
+    assert fine.params["threshold_given"] == "5mm" and fine.params["units"] == "m"
+    coarse = pointcvx.decompose(MUG, threshold="5mm", units="cm", features="model", n_points=2000,
+                                max_hulls=4)
+    assert coarse.params["threshold"] == pytest.approx(0.5 / scale) and coarse.params["units"] == "cm"
+    with pytest.raises(InputError, match="length with a unit"):
+        pointcvx.decompose(MUG, threshold="5 parsecs")
+    with pytest.raises(InputError, match="threshold must be positive"):
+        pointcvx.decompose(MUG, threshold="-1mm")
+
+
+def test_length_thresholds_on_the_command_line(tmp_path, capsys):
+    args = _subparser("decompose").parse_args([MUG, "-t", "2.5cm", "--units", "mm"])
+    assert args.threshold == "2.5cm" and args.units == "mm"
+    assert _subparser("decompose").parse_args([MUG, "-t", "0.2"]).threshold == 0.2
+    with pytest.raises(SystemExit) as info:
+        main(["decompose", MUG, "-t", "2furlongs"])
+    assert info.value.code == EXIT_USAGE and "length with a unit" in capsys.readouterr().err
+    assert main(["bench", MUG, "-o", str(tmp_path / "b"), "-t", "5mm"]) == 1
+    assert "normalised" in capsys.readouterr().err and not (tmp_path / "b").exists()

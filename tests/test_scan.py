@@ -9,6 +9,7 @@ beside each).
 
 from __future__ import annotations
 
+import struct
 import sys
 
 import numpy as np
@@ -17,7 +18,7 @@ import trimesh
 from scipy.spatial import cKDTree
 
 import pointcvx
-from conftest import DATA
+from conftest import DATA, load_tool
 from pointcvx import InputError, MissingExtraError, OrientedCloud
 from pointcvx.io import LoadOptions, finalize
 from pointcvx.io.ply import write_cloud_ply
@@ -237,13 +238,39 @@ def test_xyz_with_bare_header_is_detected(tmp_path):
     assert pointcvx.detect(path).format == "xyz"
 
 
-def test_text_nan_rows_raise_naming_the_count(dragon, tmp_path):
+def test_non_finite_rows_of_scan_files_are_dropped_and_counted(dragon, tmp_path):
+    # In scans NaN means "no measurement": those rows go, counted; the rest loads unchanged.
     v = np.asarray(dragon.vertices)[:500].copy()
     v[[3, 50, 400], 1] = np.nan
     v[7, 2] = np.inf
-    path = write_xyz(tmp_path / "bad.xyz", v)
-    with pytest.raises(InputError, match=r"bad\.xyz: 4 of 500 points have NaN or infinite"):
+    finite = np.isfinite(v).all(axis=1)
+    for path in (write_xyz(tmp_path / "holes.xyz", v), tmp_path / "holes.ply"):
+        if path.suffix == ".ply":
+            write_cloud_ply(path, v)
+        cloud = pointcvx.load(path, normalize=False, outlier_neighbors=0, isolate="none")
+        assert cloud.info["non_finite_dropped"] == 4 and len(cloud) == 496
+        assert np.allclose(cloud.points, v[finite], atol=1e-5)
+    assert pointcvx.load(tmp_path / "holes.ply").info["non_finite_dropped"] == 4
+    # an error only when fewer than 4 finite points remain
+    v[3:] = np.nan
+    path = write_xyz(tmp_path / "empty.xyz", v)
+    with pytest.raises(InputError, match=r"empty\.xyz: only 3 of 500 points are usable \(497 NaN or "
+                       r"infinite\)"):
         pointcvx.load(path)
+    # arrays handed to the API are the caller's own: NaN there stays an error
+    with pytest.raises(InputError, match="NaN or infinite"):
+        pointcvx.decompose(np.asarray(dragon.vertices)[:500] * np.r_[np.nan, np.ones(499)][:, None])
+
+
+def test_points_beyond_the_coordinate_bound_are_dropped_or_refused(dragon, tmp_path):
+    # 1e154 once overflowed squared distances (an IndexError in normal estimation)
+    v = np.asarray(dragon.vertices)[:500].copy()
+    v[:5] = 1e154
+    cloud = pointcvx.load(write_xyz(tmp_path / "far.xyz", v), outlier_neighbors=0, isolate="none")
+    assert cloud.info["out_of_range_dropped"] == 5 and len(cloud) == 495
+    with pytest.raises(InputError, match=r"huge\.xyz: only 0 of 500 points are usable \(0 NaN or infinite, "
+                       r"500 beyond 1e\+10\)"):
+        pointcvx.load(write_xyz(tmp_path / "huge.xyz", np.asarray(dragon.vertices)[:500] * 1e154))
 
 
 def test_text_corrupted_rows_raise(tmp_path):
@@ -302,6 +329,37 @@ def test_pcd_truncated_raises(dragon, tmp_path, mode):
         load_pcd(cut)
 
 
+def test_organised_pcd_frame_drops_nan_holes_and_keeps_its_organisation(dragon, tmp_path):
+    # A 20 x 30 frame with NaN where the sensor saw nothing, in all three encodings.
+    v = np.asarray(dragon.vertices)[:600].astype(np.float32)
+    v[::4] = np.nan
+    header = ("# .PCD v0.7\nVERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 30\n"
+              "HEIGHT 20\nVIEWPOINT 0.5 0 -1 0 1 0 0\nPOINTS 600\nDATA {}\n")
+    compressed = load_tool("hostile_corpus").lzf_literals(np.ascontiguousarray(v.T).tobytes())
+    bodies = {"ascii": "".join(f"{a!r} {b!r} {c!r}\n" for a, b, c in v.tolist()).encode(),
+              "binary": v.tobytes(),
+              "binary_compressed": struct.pack("<II", len(compressed), v.nbytes) + compressed}
+    for mode, body in bodies.items():
+        path = tmp_path / f"{mode}.pcd"
+        path.write_bytes(header.format(mode).encode() + body)
+        cloud = pointcvx.load(path, normalize=False, outlier_neighbors=0, isolate="none")
+        assert cloud.info["non_finite_dropped"] == 150 and len(cloud) == 450, mode
+        assert cloud.info["organized"] == [30, 20] and cloud.info["viewpoint"] == [0.5, 0, -1, 0, 1, 0, 0]
+        assert np.allclose(cloud.points, v[np.isfinite(v).all(axis=1)], atol=1e-6)
+
+
+def test_pcd_declaring_far_more_points_than_it_holds(dragon, tmp_path):
+    # open3d allocated what a compressed block declared (std::bad_alloc for 10^12 points)
+    v = np.asarray(dragon.vertices)[:100]
+    for mode in ("binary", "binary_compressed", "ascii"):
+        path = write_pcd(tmp_path / f"{mode}.pcd", v, mode=mode)
+        data = path.read_bytes().replace(b"POINTS 100", b"POINTS 1000000000000").replace(
+            b"WIDTH 100", b"WIDTH 1000000000000")
+        path.write_bytes(data)
+        with pytest.raises(InputError, match=rf"{mode}\.pcd: (truncated|corrupted) PCD"):
+            pointcvx.load(path)
+
+
 def test_pcd_garbage_rows_raise(tmp_path):
     path = tmp_path / "garbage.pcd"
     path.write_text("VERSION .7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 5\nHEIGHT 1\n"
@@ -336,6 +394,41 @@ def test_las_round_trip(dragon, tmp_path):
     cut.write_bytes(data[: len(data) - 1000])
     with pytest.raises(InputError, match=r"cut\.las"):
         pointcvx.load(cut)
+
+
+def test_las_headers_are_checked_before_anything_is_allocated(dragon, tmp_path):
+    import tracemalloc
+
+    import laspy
+
+    v = np.asarray(dragon.vertices)[:300]
+    header = laspy.LasHeader(point_format=2, version="1.2")
+    header.scales, header.offsets = [0.001] * 3, v.min(axis=0)
+    las = laspy.LasData(header)
+    las.x, las.y, las.z = v.T
+    las.write(str(tmp_path / "ok.las"))
+    data = (tmp_path / "ok.las").read_bytes()
+    # 10^9 points declared in 1 KB: laspy allocated 26 GB before finding the file short
+    (tmp_path / "many.las").write_bytes(data[:107] + struct.pack("<I", 10**9) + data[111:1024])
+    tracemalloc.start()
+    try:
+        with pytest.raises(InputError, match=r"many\.las: truncated or corrupted LAS: the header declares "
+                           r"1000000000 points of 26 bytes"):
+            pointcvx.load(tmp_path / "many.las")
+        assert tracemalloc.get_traced_memory()[1] < 16 << 20
+    finally:
+        tracemalloc.stop()
+    # a LAS signature and random bytes: refused by its header at once (it ran past 60 s)
+    (tmp_path / "noise.las").write_bytes(b"LASF" + np.random.default_rng(2).bytes(4000))
+    with pytest.raises(InputError, match=r"noise\.las: corrupted LAS header"):
+        pointcvx.load(tmp_path / "noise.las")
+    las.write(str(tmp_path / "ok.laz"))  # LAZ through lazrs: its errors are input errors too
+    laz = (tmp_path / "ok.laz").read_bytes()
+    (tmp_path / "cut.laz").write_bytes(laz[: len(laz) // 2])
+    with pytest.raises(InputError, match=r"cut\.laz: truncated or corrupted LAS"):
+        pointcvx.load(tmp_path / "cut.laz")
+    laz_cloud = pointcvx.load(tmp_path / "ok.laz", normalize=False, outlier_neighbors=0, isolate="none")
+    assert np.allclose(laz_cloud.points, v, atol=1e-3)
 
 
 def test_las_without_laspy_names_the_extra(tmp_path, monkeypatch):

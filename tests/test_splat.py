@@ -9,12 +9,13 @@ the PCA normals are oriented the same way.
 from __future__ import annotations
 
 import gzip
+import struct
 
 import numpy as np
 import pytest
 
 import pointcvx
-from conftest import DATA, ROOT, SAMPLES, dev_files
+from conftest import DATA, SAMPLES, dev_files, load_tool
 from pointcvx.errors import InputError
 from pointcvx.io import splat as S
 from pointcvx.io.orient import estimate_normals, orient_normals
@@ -96,7 +97,8 @@ def test_every_dev_splat_loads_oriented(path):
                 "dropped_outliers", "normals", "normals_flipped", "sh_degree"):
         assert key in info, key
     kept = info["gaussians"] - info["dropped_nonfinite"] - info["dropped_low_opacity"]
-    assert len(cloud) == kept - info["dropped_floaters"] - info["dropped_outliers"]
+    isolated = sum(info["isolation"]["removed"].values())  # ground and clutter (pointcvx.scene)
+    assert len(cloud) == kept - info["dropped_floaters"] - info["dropped_outliers"] - isolated
     normalized = pointcvx.load(path, n_points=2000) if path.name == "donut.ply" else None
     if normalized is not None:
         assert len(normalized) == 2000 and np.abs(normalized.points).max() <= 1 + 1e-9
@@ -142,7 +144,9 @@ AGREEMENT = [
 
 @pytest.mark.parametrize(("name", "min_unsigned", "min_signed"), AGREEMENT, ids=[a[0] for a in AGREEMENT])
 def test_normals_agree_with_point_pca(name, min_unsigned, min_signed):
-    cloud = load_dev(name)
+    # The loader's normals are those of the whole splat (isolation comes after them); re-orient
+    # PCA normals on the same points, ground included.
+    cloud = pointcvx.load(SPLATS / name, normalize=False, isolate="none")
     pca = estimate_normals(cloud.points, 24)
     cos = np.einsum("ij,ij->i", pca, cloud.normals)
     close = np.abs(cos) > 0.7
@@ -171,15 +175,6 @@ def test_first_layer_stops_at_a_gap():
     assert len(S.first_layer(key[:0], depth[:0], gap=1.0, tolerance=1.0)) == 0
 
 
-def _tool(name: str):
-    import importlib.util
-
-    spec = importlib.util.spec_from_file_location(name, ROOT / "tools" / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
 def test_synthetic_splats_come_with_their_truth(tmp_path):
     """``tools/synthetic_splats.py`` writes a splat and the solid it was made from, in the same
     frame, with its floater cluster off the shape; ``tools/eval_dataset.py --truth`` finds the
@@ -189,7 +184,7 @@ def test_synthetic_splats_come_with_their_truth(tmp_path):
 
     from pointcvx.solid import raycasting_scene
 
-    assert _tool("synthetic_splats").main([str(tmp_path), "--shapes", "1"]) == 0
+    assert load_tool("synthetic_splats").main([str(tmp_path), "--shapes", "1"]) == 0
     truth = trimesh.load(tmp_path / "truth" / "solid_00.obj", force="mesh")
     splat = tmp_path / "splats" / "solid_00.ply"
     cloud = pointcvx.load(splat, normalize=False)
@@ -200,7 +195,7 @@ def test_synthetic_splats_come_with_their_truth(tmp_path):
     dist = scene.compute_distance(o3d.core.Tensor(cloud.points.astype(np.float32))).numpy()
     assert dist.max() < 0.03, dist.max()
     (tmp_path / "truth" / "solid_00.mtl").write_text("")
-    eval_dataset, folder = _tool("eval_dataset"), str(tmp_path / "truth")
+    eval_dataset, folder = load_tool("eval_dataset"), str(tmp_path / "truth")
     assert eval_dataset.truth_file(folder, str(splat)) == str(tmp_path / "truth" / "solid_00.obj")
     with pytest.raises(SystemExit):
         eval_dataset.truth_file(folder, str(tmp_path / "splats" / "other.ply"))
@@ -211,7 +206,7 @@ def test_bundled_mug_splat_normals_match_the_true_mug():
     checked against the gradient of the mug's signed distance. The inner wall of the cup (under
     two visibility pixels behind the outer one) is the hard part: seen through the outer wall from
     the side, its points would vote their correct normals inward."""
-    samples = _tool("make_samples")
+    samples = load_tool("make_samples")
     cloud = pointcvx.load(SAMPLES / "mug_splat.ply", normalize=False)
     p, eps = cloud.points, 1e-4
     grad = np.stack([samples.mug_sdf(p + eps * e) - samples.mug_sdf(p - eps * e) for e in np.eye(3)], axis=1)
@@ -296,6 +291,88 @@ def test_filters_drop_transparent_gaussians_and_floaters(tmp_path):
     assert len(cloud) >= 4600 - floater - 200  # few good Gaussians go
     with pytest.raises(InputError, match="no Gaussian is left"):
         pointcvx.load(path, min_opacity=0.99)
+
+
+def test_gaussians_larger_than_the_splat_are_dropped_with_a_warning(tmp_path, caplog):
+    # A log-scale of 80 is a Gaussian e^80 units across: no surface, and its size would reach the
+    # weights and the samples. Those larger than the centres' bounding-box diagonal are dropped.
+    rng = np.random.default_rng(12)
+    g = _shape_gaussians("sphere", 2000, rng)
+    g["scales"][:30, 0] = np.exp(80.0)
+    path = tmp_path / "huge.ply"
+    _write(path, g)
+    with caplog.at_level("WARNING", logger="pointcvx"):
+        cloud = pointcvx.load(path, normalize=False, samples_per_gaussian=2)
+    assert cloud.info["dropped_huge_scales"] == 30
+    assert "larger than the whole splat" in caplog.text
+    assert np.abs(cloud.points).max() < 1.5 and cloud.weights.max() < 1.0
+    g["scales"][:, 0] = np.exp(80.0)
+    _write(path, g)
+    with pytest.raises(InputError, match="larger than the splat"):
+        pointcvx.load(path)
+    # the dev captures have no Gaussian anywhere near that size: nothing of theirs is dropped
+    for name in ("biker.ply", "scene_tile_full_sh.ply"):
+        decoded = S.read_inria_ply(SPLATS / name)
+        finite = S.finite_mask(decoded)
+        assert S.scale_mask({k: v[finite] for k, v in decoded.items()}).all()
+
+
+def test_compressed_ply_with_random_chunks_and_body_loads_or_is_an_input_error(tmp_path):
+    # Random chunk ranges (log-scales in the hundreds) once made the mixture covariances
+    # infinite: numpy's eigh failed to converge (LinAlgError) on most of these.
+    g = _shape_gaussians("sphere", 600, np.random.default_rng(13))
+    src = tmp_path / "ok.compressed.ply"
+    compressed_ply = load_tool("hostile_corpus").compressed_ply
+    src.write_bytes(compressed_ply(g))
+    data = src.read_bytes()
+    start = data.index(b"end_header") + 11
+    for seed in range(6):
+        rng = np.random.default_rng(seed)
+        chunk = rng.normal(scale=float(rng.choice([1, 10, 100, 400])), size=(3, 12)).astype("<f4")
+        path = tmp_path / f"random{seed}.compressed.ply"
+        path.write_bytes(data[:start] + chunk.tobytes() + rng.bytes(len(data) - start - chunk.nbytes))
+        try:
+            cloud = pointcvx.load(path, n_points=1000)
+        except InputError:
+            continue
+        assert np.isfinite(cloud.points).all() and np.isfinite(cloud.normals).all()
+
+
+def test_spz_gzip_bomb_is_refused_before_inflating(tmp_path):
+    # A valid SPZ header for 300 Gaussians, then 3 GiB of gzip'd zeros (3 MB on disk): the reader
+    # inflates what 300 Gaussians need (and a little slack), sees more coming, and stops.
+    import tracemalloc
+
+    bombs = load_tool("hostile_corpus")
+    g = _shape_gaussians("sphere", 300, np.random.default_rng(14))
+    S.write_spz(tmp_path / "v3.spz", g["centers"], g["scales"], g["rotations"], g["opacity"], g["colors"])
+    header = gzip.decompress((tmp_path / "v3.spz").read_bytes())[:16]
+    bomb = tmp_path / "bomb.spz"
+    bomb.write_bytes(bombs.gzip_of_zeros(header, 3 << 30))
+    assert bomb.stat().st_size < 4 << 20
+    tracemalloc.start()
+    try:
+        with pytest.raises(InputError, match=r"bomb\.spz: corrupted SPZ: its gzip stream inflates past"):
+            pointcvx.load(bomb)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 64 << 20
+    # a header declaring more Gaussians than its gzip stream could ever inflate to: refused at once
+    big = header[:8] + struct.pack("<I", 10**8) + header[12:]
+    (tmp_path / "count.spz").write_bytes(gzip.compress(big + bytes(1000)))
+    with pytest.raises(InputError, match="declares 100000000 Gaussians"):
+        pointcvx.load(tmp_path / "count.spz")
+
+
+def test_ply_splat_declaring_far_more_rows_than_it_holds(tmp_path):
+    g = _shape_gaussians("sphere", 50, np.random.default_rng(15))
+    path = tmp_path / "ok.ply"
+    _write(path, g)
+    data = path.read_bytes().replace(b"element vertex 50", b"element vertex 1000000000000", 1)
+    (tmp_path / "many.ply").write_bytes(data)
+    with pytest.raises(InputError, match="declares 1000000000000 vertices, needing at least"):
+        S.read_inria_ply(tmp_path / "many.ply")
 
 
 # -------------------------------------------------------------------- formats, round trips

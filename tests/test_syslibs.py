@@ -104,16 +104,27 @@ def test_install_hints(library, hint):
 
 @pytest.mark.parametrize("mask", [0o022, 0o027, 0o077])
 def test_outputs_follow_the_umask(tmp_path, mask):
-    """Decomposed hulls, per-hull files and `info -o` clouds get 0o666 less the umask."""
-    small = [str(MUG), "-n", "2000", "-k", "2", "-q"]
+    """Every file and folder pointcvx makes gets 0o666 (folders 0o777) less the umask: decomposed
+    hulls, per-hull files, URDF and MJCF folders (their manifest too), `info -o` clouds, and a
+    batch's folders, hull folders, manifest, lock and reports."""
+    small = [str(MUG), "-n", "2000", "-k", "2", "-q", "--features", "model"]
     runs = [["decompose", *small, "-o", str(tmp_path / "h.obj")],
-            ["decompose", *small, "-o", str(tmp_path / "per"), "--per-hull", "--features", "model"],
+            ["decompose", *small, "-o", str(tmp_path / "per"), "--per-hull"],
+            ["decompose", *small, "-o", str(tmp_path / "new" / "robot.urdf")],
             ["info", str(MUG), "-n", "500", "-q", "-o", str(tmp_path / "c.ply")]]
+    expected = {"h.obj", "c.ply", "per/hull_000.obj", "per/.pointcvx.json", "new/robot_urdf/robot.urdf",
+                "new/robot_urdf/robot_collision_0.obj", "new/robot_urdf/.pointcvx.json"}
+    if mask == 0o027:  # a batch (a worker process: slow) once, where every mode bit differs
+        runs.append(["batch", *small, "-o", str(tmp_path / "batch"), "--format", "mjcf", "--jobs", "1"])
+        expected |= {"batch/batch_report.csv", "batch/batch_report.json", "batch/batch_manifest.jsonl",
+                     "batch/.batch.lock", "batch/hulls/mug_mjcf/mug.xml",
+                     "batch/hulls/mug_mjcf/mug_collision_0.obj"}
     code = (f"import os, sys\nos.umask({mask})\nfrom pointcvx.cli import main\n"
             f"sys.exit(max(main(args) for args in {runs!r}))")
     res = _run(code)
     assert res.returncode == 0, res.stderr
-    files = [tmp_path / "h.obj", tmp_path / "c.ply", *sorted((tmp_path / "per").iterdir())]
-    assert len(files) >= 3
-    for f in files:
-        assert stat.S_IMODE(os.stat(f).st_mode) == 0o666 & ~mask, f
+    made = sorted(tmp_path.rglob("*"))
+    assert expected <= {p.relative_to(tmp_path).as_posix() for p in made}
+    for f in made:
+        want = (0o777 if f.is_dir() else 0o666) & ~mask
+        assert stat.S_IMODE(os.stat(f).st_mode) == want, f

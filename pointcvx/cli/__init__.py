@@ -7,6 +7,7 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
+import warnings
 from pathlib import Path
 
 from ..errors import (
@@ -26,7 +27,7 @@ log = logging.getLogger("pointcvx")
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from . import batch, bench, decompose, evaluate, info, train
+    from . import batch, bench, decompose, evaluate, info, train, view
 
     parser = UsageParser(
         prog="pointcvx",
@@ -41,6 +42,7 @@ def build_parser() -> argparse.ArgumentParser:
     evaluate.add_parser(sub)
     bench.add_parser(sub)
     batch.add_parser(sub)
+    view.add_parser(sub)
     return parser
 
 
@@ -54,6 +56,13 @@ def main(argv: list[str] | None = None) -> int:
         level=logging.DEBUG if getattr(args, "verbose", False) else logging.WARNING,
         format="pointcvx: %(levelname)s: %(message)s",
     )
+    # Libraries' warnings (numpy on overflowing values, torch on its own settings) come with a
+    # source line and say nothing a user can act on; pointcvx's own go through logging.
+    # With -v they are logged like everything else.
+    if getattr(args, "verbose", False):
+        logging.captureWarnings(True)
+    else:
+        warnings.simplefilter("ignore")
     try:
         return args.func(args)
     except PointcvxError as exc:

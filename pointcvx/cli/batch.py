@@ -8,12 +8,10 @@ import time
 
 from ..flags import add_flags, options_from_args
 from ..options import DECOMPOSE_POINTS, DecomposeOptions, LoadOptions
+from .choices import LazyChoices
 
 
 def add_parser(sub) -> argparse.ArgumentParser:
-    from ..apps.batch import ENGINES
-    from ..export import FORMATS
-
     p = sub.add_parser(
         "batch",
         help="decompose many shapes (folders, globs, manifests) on a process pool or Ray",
@@ -27,8 +25,9 @@ def add_parser(sub) -> argparse.ArgumentParser:
     )
     p.add_argument("inputs", nargs="+", metavar="INPUT", help="folder, file, glob pattern or manifest")
     p.add_argument("-o", "--output", required=True, metavar="OUTDIR", help="output folder")
-    p.add_argument("--engine", choices=ENGINES, default="local",
-                   help="local process pool (default) or Ray (pip install 'pointcvx[ray]')")
+    p.add_argument("--engine", choices=LazyChoices("pointcvx.apps.batch.driver", "ENGINES"),
+                   default="local", metavar="ENGINE",
+                   help="%(choices)s: local process pool (default) or Ray (pip install 'pointcvx[ray]')")
     p.add_argument("--jobs", type=_positive(int), default=None, metavar="N",
                    help="workers (default: CPUs / --threads, of this machine or the Ray cluster)")
     p.add_argument("--address", default=None, metavar="ADDR",
@@ -41,9 +40,10 @@ def add_parser(sub) -> argparse.ArgumentParser:
     p.add_argument("--max-memory", type=float, default=None, metavar="MB",
                    help="resident memory limit of a worker while it runs an asset (default: 80%% "
                    "of the machine's memory / workers; 0: none)")
-    p.add_argument("--format", choices=list(FORMATS), default="obj",
-                   help="output format per asset (default obj: one OBJ, an 'o' per hull)")
-    add_flags(p, DecomposeOptions)
+    p.add_argument("--format", choices=LazyChoices("pointcvx.export", "FORMATS"), default="obj",
+                   metavar="FORMAT",
+                   help="output format per asset: %(choices)s (default obj: one OBJ, an 'o' per hull)")
+    add_flags(p, DecomposeOptions, skip=("timeout",))  # its own --timeout bounds each asset
     p.add_argument("--skip-failed", action="store_true",
                    help="do not retry the assets the manifest records as failed")
     p.add_argument("--overwrite", action="store_true", help="forget the manifest and redo every asset")
@@ -75,9 +75,9 @@ def batch_options(args: argparse.Namespace):
     """The :class:`~pointcvx.apps.batch.BatchOptions` of parsed ``pointcvx batch`` arguments."""
     from ..apps.batch import BatchOptions
 
-    return BatchOptions(options_from_args(args, DecomposeOptions), options_from_args(args, LoadOptions),
-                        format=args.format, timeout=args.timeout, max_memory_mb=args.max_memory,
-                        threads=args.threads)
+    dec = options_from_args(args, DecomposeOptions, skip=("timeout",))  # --timeout is batch's own
+    return BatchOptions(dec, options_from_args(args, LoadOptions), format=args.format,
+                        timeout=args.timeout, max_memory_mb=args.max_memory, threads=args.threads)
 
 
 def summary_text(report) -> str:

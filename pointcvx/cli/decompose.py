@@ -3,14 +3,18 @@
 from __future__ import annotations
 
 import argparse
+import functools
 import json
+import os
+import sys
 from pathlib import Path
 
-from ..errors import InputError, OutputError
-from ..export import EXTENSIONS, FORMATS
+from ..deadline import watchdog
+from ..errors import EXIT_INPUT, InputError
 from ..flags import add_flags, options_from_args
 from ..options import DECOMPOSE_POINTS, DecomposeOptions, LoadOptions
 from ..progress import StageBars
+from .choices import LazyChoices
 
 
 def add_parser(sub) -> argparse.ArgumentParser:
@@ -26,17 +30,25 @@ def add_parser(sub) -> argparse.ArgumentParser:
     )
     p.add_argument("input", help="mesh, CAD part, Gaussian splat or scan")
     p.add_argument("-o", "--output", metavar="OUT",
-                   help="OUT.obj (one 'o' per hull), OUT.stl/DIR for one file per hull, OUT.glb/"
-                        "OUT.gltf (a node per hull), OUT.urdf or OUT.xml/OUT.mjcf (folder OUT/ "
-                        "with the robot file and an OBJ per hull), OUT.usda/OUT.usd (USD rigid "
-                        "body, a collider per hull), OUT.json (report) "
-                        "(default: ./INPUT_STEM_hulls.obj)")
-    p.add_argument("--format", choices=list(FORMATS), default=None,
-                   help="output format (default: from OUT's suffix)")
+                   help="OUT.obj (one 'o' per hull), DIR (new or empty) or OUT.stl (folder "
+                        "OUT_stl/) for one file per hull, OUT.glb/OUT.gltf (a node per hull), "
+                        "OUT.urdf or OUT.xml/OUT.mjcf (folder OUT_urdf/ or OUT_mjcf/ with the robot "
+                        "file and an OBJ per hull), OUT.usda/OUT.usd (USD rigid body, a collider "
+                        "per hull), OUT.json (report) (default: ./INPUT_STEM_hulls.obj)")
+    p.add_argument("--format", choices=LazyChoices("pointcvx.export", "FORMATS"), default=None,
+                   metavar="FORMAT", help="output format: %(choices)s (default: from OUT's suffix)")
     add_flags(p, DecomposeOptions)
     p.add_argument("--per-hull", action="store_true", help="write one file per hull")
-    p.add_argument("--overwrite", action="store_true", help="replace existing outputs")
+    p.add_argument("--up", default="auto", choices=("auto", "x", "y", "z", "-x", "-y", "-z"),
+                   metavar="AXIS", help="the input's up axis for URDF, MJCF and USD, turned to +z there "
+                   "(hull coordinates stay in the input's frame): x, y, z, -x, -y, -z, or auto (the "
+                   "support plane that isolation found, else z)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace an existing output (a folder output whole; files pointcvx did not "
+                        "write are never deleted)")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    p.add_argument("--preview", metavar="FILE.html",
+                   help="also write a look at the result: an offline HTML page and FILE.png beside it")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar, no summary")
     p.add_argument("-v", "--verbose", action="store_true", help="log details to stderr")
     add_flags(p, LoadOptions, defaults={"n_points": DECOMPOSE_POINTS})
@@ -46,6 +58,8 @@ def add_parser(sub) -> argparse.ArgumentParser:
 
 def default_output(input_path: str, format: str | None = None) -> Path:
     """``./INPUT_STEM_hulls.EXT`` in the current folder."""
+    from ..export import EXTENSIONS
+
     return Path.cwd() / f"{Path(input_path).stem}_hulls{EXTENSIONS[format or 'obj']}"
 
 
@@ -53,23 +67,24 @@ def check_output(out: Path, fmt: str, per_hull: bool, input_path: str, overwrite
     """Refuse before the (slow) decomposition what the export would refuse after it."""
     from ..export import main_file, output_folder
     from ..io.files import check_writable
+    from ..io.outputs import check_folder
 
-    main = main_file(out, fmt, per_hull)
-    if main is None or fmt in ("urdf", "mjcf"):  # a folder, made if missing
-        folder = output_folder(out, fmt)
-        if folder.exists() and not folder.is_dir():
-            raise OutputError(f"{folder}: exists and is not a directory")
-        first = main if main is not None else folder / f"hull_000{EXTENSIONS[fmt]}"
-        if first.exists() and not overwrite:
-            raise OutputError(f"{first}: exists; pass --overwrite to replace it")
+    folder = output_folder(out, fmt, per_hull)
+    if folder is not None:  # a folder of its own, replaced whole
+        check_folder(folder, overwrite, protect=[input_path], flag="--overwrite")
         return
-    check_writable(main, [input_path], overwrite)
+    check_writable(main_file(out, fmt, per_hull), [input_path], overwrite)
 
 
 def summary_line(summary: dict, limits) -> str:
     """The line printed at the end: hulls, concavity, time, features, caps, output."""
     line = (f"{summary['hulls']} hulls, max concavity {summary['max_concavity']:.4f}, "
             f"{summary['seconds']:.2f} s, {summary['features']} features")
+    if summary.get("objects"):
+        line += f", a scene of {summary['objects']} objects"
+    removed = {k: v for k, v in (summary.get("removed") or {}).items() if v}
+    if removed:
+        line += "; removed " + ", ".join(f"{n} {why} points" for why, n in removed.items())
     if limits.active:
         caps = ", ".join(f"{what} <= {v}" for what, v in (("vertices", limits.max_vertices),
                                                            ("triangles", limits.max_faces))
@@ -79,12 +94,30 @@ def summary_line(summary: dict, limits) -> str:
                  f"(+{100 * summary['added_volume_ratio']:.3g}%)")
     elif limits.target:
         line += f"; {limits.target}: no per-hull caps"
-    return f"{line} -> {summary['output']}"
+    line = f"{line} -> {summary['output']}"
+    if summary.get("folder"):
+        line += f" ({summary['files']} files in {summary['folder']}{os.sep})"
+    return line
+
+
+def timeout_grace(timeout: float) -> float:
+    """Seconds past ``--timeout`` before the watchdog ends the process: the API's own checks
+    (after each step) get the first chance to stop cleanly."""
+    return min(max(1.0, 0.1 * timeout), 10.0)
+
+
+def _give_up(timeout: float, bars: bool) -> None:
+    """The watchdog's end of a run past ``--timeout``: one line, exit 1; nothing was written
+    (outputs are written after the decomposition)."""
+    sys.stderr.write(("\n" if bars else "") + f"pointcvx: error: stopped after the time limit "
+                     f"of {timeout:g} s; nothing was written\n")
+    sys.stderr.flush()
+    os._exit(EXIT_INPUT)
 
 
 def run(args: argparse.Namespace) -> int:
     from ..decomposition.limits import hull_limits
-    from ..export import format_for, main_file
+    from ..export import EXTENSIONS, format_for, main_file, output_folder
     from ..pipeline import decompose
 
     dec = options_from_args(args, DecomposeOptions)
@@ -98,19 +131,32 @@ def run(args: argparse.Namespace) -> int:
     check_output(out, fmt, per_hull, args.input, args.overwrite)
     bars = StageBars(not args.quiet)
     try:
-        result = decompose(args.input, progress=bars, **dec.as_dict(), **load.as_dict())
+        with watchdog(None if dec.timeout is None else dec.timeout + timeout_grace(dec.timeout),
+                      functools.partial(_give_up, dec.timeout, not args.quiet)):
+            result = decompose(args.input, progress=bars, **dec.as_dict(), **load.as_dict())
     finally:
         bars.close()
-    written = result.export(out, fmt, overwrite=args.overwrite, per_hull=per_hull)
+    written = result.export(out, fmt, overwrite=args.overwrite, per_hull=per_hull, up=args.up)
+    if args.preview:  # the page and its PNG, after the hulls are safely written
+        from ..view import write_view
+
+        write_view(args.preview, result, overwrite=args.overwrite)
     if args.quiet:
         return 0
     summary = result.summary()
     summary["format"] = fmt
-    summary["output"] = str(written[0].parent / f"hull_*{EXTENSIONS[fmt]}" if per_hull else written[0])
+    folder = output_folder(out, fmt, per_hull)
+    main = main_file(out, fmt, per_hull)
+    summary["output"] = str(main if main is not None else folder / f"hull_*{EXTENSIONS[fmt]}")
+    summary["folder"] = str(folder) if folder is not None else None
     summary["files"] = len(written)
     if result.params.get("hull_limits"):
         summary["hull_limits"] = result.params["hull_limits"]
     summary["features"] = result.params.get("features")
+    if result.objects:
+        summary["objects"] = len(result.objects)
+    if "isolation" in result.cloud.info:
+        summary["removed"] = result.cloud.info["isolation"]["removed"]
     summary["timings"] = {k: round(v, 3) for k, v in result.timings.items()}
     print(json.dumps(summary, indent=2) if args.json else summary_line(summary, limits))
     return 0

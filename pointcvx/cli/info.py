@@ -5,8 +5,6 @@ from __future__ import annotations
 import argparse
 import json
 
-import numpy as np
-
 from ..flags import add_flags, options_from_args
 from ..options import LoadOptions
 
@@ -36,6 +34,8 @@ def add_parser(sub) -> argparse.ArgumentParser:
 
 def report(cloud) -> dict:
     """What ``info`` prints about a loaded cloud (JSON-able)."""
+    import numpy as np
+
     lo, hi = cloud.in_input_units().bounds if not cloud.normalization.is_identity else cloud.bounds
     info = dict(cloud.info)
     out = {

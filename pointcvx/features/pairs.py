@@ -107,6 +107,30 @@ def nonconvex_mask(solid: Solid, anchors: np.ndarray, normals: np.ndarray, cands
     return out.reshape(a, c)
 
 
+def anchor_candidates(solid: Solid, points: np.ndarray, normals: np.ndarray, rng: np.random.Generator,
+                      *, n_anchors: int, n_candidates: int, pool_size: int | None = None):
+    """The draws every triplet sampler shares: a pool of the (n, 3) ``points`` (and ``normals``),
+    anchors with a ray-exit positive, ``n_candidates`` candidates per anchor and which of them are
+    negatives (their segment to the anchor leaves ``solid``); anchors without a positive or
+    without a negative are dropped.
+
+    Returns ``(pool (p, 3) float, anchor (a,) int, positive (a, 3) float, candidates (a, c) int,
+    negative (a, c) bool)``, indices into the pool.
+    """
+    n = len(points)
+    if pool_size is not None and pool_size < n:
+        keep = np.sort(rng.choice(n, pool_size, replace=False))
+        points, normals = points[keep], normals[keep]
+        n = pool_size
+    anchor = rng.choice(n, size=min(n_anchors, n), replace=False)
+    pos, ok = positives(solid, points[anchor], normals[anchor], rng)
+    anchor = anchor[ok]
+    cand = rng.integers(0, n, size=(len(anchor), n_candidates))
+    neg = nonconvex_mask(solid, points[anchor], normals[anchor], points[cand])
+    has = neg.any(axis=1)
+    return points, anchor[has], pos[has], cand[has], neg[has]
+
+
 def sample_triplets(
     solid: Solid,
     points: np.ndarray,
@@ -142,18 +166,8 @@ def sample_triplets(
         so ``len(result)`` may be below ``n_anchors`` (0 for a convex shape).
     """
     rng = np.random.default_rng(seed)
-    n = len(points)
-    if pool_size is not None and pool_size < n:
-        keep = np.sort(rng.choice(n, pool_size, replace=False))
-        points, normals = points[keep], normals[keep]
-        n = pool_size
-    anchor = rng.choice(n, size=min(n_anchors, n), replace=False)
-    pos, ok = positives(solid, points[anchor], normals[anchor], rng)
-    anchor = anchor[ok]
-    cand = rng.integers(0, n, size=(len(anchor), n_candidates))
-    neg = nonconvex_mask(solid, points[anchor], normals[anchor], points[cand])
-    has = neg.any(axis=1)
-    anchor, pos, cand, neg = anchor[has], pos[has], cand[has], neg[has]
+    points, anchor, pos, cand, neg = anchor_candidates(solid, points, normals, rng, n_anchors=n_anchors,
+                                                       n_candidates=n_candidates, pool_size=pool_size)
     k = n_hard + n_uniform
     negative = np.empty((len(anchor), k), dtype=np.int64)
     eps = 1e-3

@@ -20,6 +20,7 @@ import numpy as np
 from ..cloud import OrientedCloud, check_extent
 from ..errors import InputError
 from ..options import LoadOptions
+from ..scene import isolate_cloud
 from .convert import from_numpy, from_open3d, from_trimesh
 from .sniff import Detected, detect
 
@@ -44,7 +45,11 @@ def _loader(modality: str):
 
 
 def finalize(cloud: OrientedCloud, opts: LoadOptions) -> OrientedCloud:
-    """Common post-processing: degeneracy check, seeded point cap, [-1, 1]^3 normalisation."""
+    """Common post-processing: isolation of the object (splats and scans by default, once per
+    cloud; :func:`pointcvx.scene.isolate_cloud`), degeneracy check, seeded point cap, [-1, 1]^3
+    normalisation."""
+    if "isolation" not in cloud.info:
+        cloud = isolate_cloud(cloud, opts.isolate, opts.crop, seed=opts.seed)
     check_extent(cloud.points)
     if opts.n_points is not None:
         cloud = cloud.resample(opts.n_points, seed=opts.seed)
@@ -83,10 +88,18 @@ def load(path: str | os.PathLike, options: LoadOptions | None = None, **kwargs) 
         raise InputError(f"load takes a file path, not a {type(path).__name__}; pass arrays, "
                          "trimesh or open3d objects to pointcvx.decompose (or pointcvx.pipeline.as_cloud)")
     t0 = time.perf_counter()
-    found = detect(path)
-    log.debug("%s: detected %s (%s)", path, found.format, found.modality)
-    cloud = _loader(found.modality)(path, found.format, opts)
-    cloud = finalize(cloud, opts)
+    try:
+        # Hostile values (NaN, overflow) are what the loaders' checks are for: numpy's warnings
+        # about them would only be noise on the user's terminal.
+        with np.errstate(all="ignore"):
+            found = detect(path)
+            log.debug("%s: detected %s (%s)", path, found.format, found.modality)
+            cloud = _loader(found.modality)(path, found.format, opts)
+            cloud = finalize(cloud, opts)
+    except InputError as exc:  # name the file in checks that only know the arrays
+        if str(path) in str(exc):
+            raise
+        raise type(exc)(f"{path}: {exc}") from None
     cloud.info.setdefault("source", str(path))
     cloud.info["format"] = found.format
     cloud.info["points"] = len(cloud)
@@ -115,13 +128,12 @@ def as_cloud(x: Any, options: LoadOptions | None = None, **kwargs: Any) -> Orien
         return load(os.fsdecode(x) if isinstance(x, bytes) else x, opts)
     n_mesh = opts.n_points or opts.mesh_points
     if isinstance(x, (np.ndarray, list)):
-        return finalize(from_numpy(np.asarray(x, dtype=np.float64)), opts)
+        return finalize(from_numpy(x), opts)
     if type(x).__module__.startswith("trimesh"):
         return finalize(from_trimesh(x, n_points=n_mesh, seed=opts.seed), opts)
     if type(x).__module__.startswith("open3d"):
         return finalize(from_open3d(x, n_points=n_mesh, seed=opts.seed), opts)
     if isinstance(x, tuple) and len(x) == 2:
-        return finalize(from_numpy(np.asarray(x[0], dtype=np.float64), np.asarray(x[1], dtype=np.float64)),
-                        opts)
+        return finalize(from_numpy(x[0], x[1]), opts)
     raise InputError(f"cannot decompose a {type(x).__name__}: pass a path, an (n, 3) array, "
                      "(points, normals), an open3d geometry, a trimesh or an OrientedCloud")

@@ -18,10 +18,13 @@ def from_numpy(points: Any, normals: Any = None, colors: Any = None, *, modality
     ``scan_options``)."""
     pts = check_points(points)
     check_extent(pts)
+    if colors is not None:
+        colors = check_points(colors, "colors")
     if normals is None:
         from .scan import cloud_from_points
 
         return cloud_from_points(pts, colors=colors, modality=modality, **scan_options)
+    normals = check_points(normals, "normals")
     return OrientedCloud(pts, normals, colors=colors, modality=modality, info={"normals": "given"})
 
 

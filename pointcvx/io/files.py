@@ -3,22 +3,36 @@
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
-import tempfile
+import stat
 from collections.abc import Iterator
 from pathlib import Path
 
 from ..errors import InputError, OutputError
 
+_SPECIAL = ((stat.S_ISFIFO, "a FIFO (named pipe)"), (stat.S_ISCHR, "a character device"),
+            (stat.S_ISBLK, "a block device"), (stat.S_ISSOCK, "a socket"))
+
 
 def check_readable(path: str | os.PathLike) -> Path:
-    """The path as a :class:`Path`, or :class:`InputError` if it is missing, a folder or empty."""
+    """The path as a :class:`Path`, or :class:`InputError` if it is missing, a folder, not a
+    regular file (a FIFO or a device, which could block or never end) or empty."""
     p = Path(path)
-    if not p.exists():
-        raise InputError(f"{p}: no such file")
-    if p.is_dir():
+    try:
+        st = p.stat()
+    except OSError as exc:
+        if exc.errno == errno.ELOOP:
+            raise InputError(f"{p}: a loop of symbolic links") from None
+        if isinstance(exc, FileNotFoundError) or exc.errno == errno.ENOTDIR:
+            raise InputError(f"{p}: no such file") from None
+        raise InputError(f"{p}: cannot read ({exc.strerror})") from None
+    if stat.S_ISDIR(st.st_mode):
         raise InputError(f"{p}: is a directory, not a file")
-    if p.stat().st_size == 0:
+    if not stat.S_ISREG(st.st_mode):
+        kind = next((name for test, name in _SPECIAL if test(st.st_mode)), "a special file")
+        raise InputError(f"{p}: not a regular file but {kind}; pass a file")
+    if st.st_size == 0:
         raise InputError(f"{p}: the file is empty")
     if not os.access(p, os.R_OK):
         raise InputError(f"{p}: permission denied")
@@ -64,17 +78,27 @@ def atomic_path(path: str | os.PathLike, overwrite: bool = True) -> Iterator[Pat
     A failure leaves any existing file untouched and no partial output behind. With
     ``overwrite=False`` an existing ``path`` raises :class:`OutputError` before anything runs.
     The file gets the mode a plain ``open()`` would give it (the user's umask), not mkstemp's 0600.
+    Its hidden name carries this process's id, so the next write into the folder removes what a
+    killed run left (:func:`~pointcvx.io.outputs.clean_leftovers`).
     """
+    from .outputs import clean_leftovers, temp_name
+
     target = Path(path)
     if target.exists() and not overwrite:
         raise OutputError(f"{target}: exists (pass overwrite to replace it)")
     parent = target.parent if str(target.parent) else Path(".")
     if not parent.is_dir():
         raise OutputError(f"{parent}: output directory does not exist")
-    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=target.suffix or ".tmp", dir=parent)
-    os.close(fd)
-    os.chmod(tmp, user_file_mode())
-    tmp_path = Path(tmp)
+    clean_leftovers(parent)
+    for _ in range(100):
+        tmp_path = parent / temp_name("file", target.name)
+        try:  # 0o666 less the umask, as open() makes it
+            os.close(os.open(tmp_path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
+            break
+        except FileExistsError:
+            continue
+    else:
+        raise OutputError(f"{parent}: cannot make a temporary file beside {target.name}")
     try:
         yield tmp_path
         os.replace(tmp_path, target)

@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import logging
 import os
+import re
+import struct
 import warnings
 
 import numpy as np
@@ -24,11 +26,40 @@ from .files import check_readable
 log = logging.getLogger(__name__)
 
 _TRIMESH_TYPE = {"obj": "obj", "ply-mesh": "ply", "stl": "stl", "off": "off", "glb": "glb", "gltf": "gltf"}
+# What trimesh raises on files it cannot parse (AssertionError: the glTF reader's size checks).
+_PARSE_ERRORS = (ValueError, IndexError, KeyError, TypeError, OSError, EOFError, AttributeError,
+                 AssertionError, RecursionError, UnicodeDecodeError, struct.error)
+_OBJ_ZERO = re.compile(rb"[ \t][-+]?0+(?=[/ \t\r\n]|$)")
+
+
+def check_obj_indices(p, data: bytes) -> None:
+    """:class:`InputError` naming the line of the first OBJ face with a vertex index 0 (OBJ counts
+    from 1, and trimesh would read 0 as -1, the last vertex)."""
+    for m in _OBJ_ZERO.finditer(data):
+        start = data.rfind(b"\n", 0, m.start()) + 1
+        if data[start:m.start() + 1].lstrip()[:2] in (b"f ", b"f\t"):
+            line = data.count(b"\n", 0, start) + 1
+            raise InputError(f"{p}: corrupted OBJ: line {line} has a face with vertex index 0 "
+                             "(OBJ indices start at 1)")
+
+
+def check_off_counts(p, data: bytes) -> None:
+    """:class:`InputError` when an OFF header declares more vertices and faces than its text can hold
+    (each needs at least 6 bytes: ``0 0 0`` and a newline)."""
+    lines = [ln.split(b"#", 1)[0] for ln in data[:4096].splitlines()]
+    words = b" ".join(ln for ln in lines if ln.strip()).split()[:4]
+    if len(words) >= 3 and words[0].endswith(b"OFF") and words[1].isdigit() and words[2].isdigit():
+        vertices, faces = int(words[1]), int(words[2])
+        if 6 * (vertices + faces) > len(data):
+            raise InputError(f"{p}: truncated or corrupted OFF: the header declares {vertices} vertices and "
+                             f"{faces} faces, the file has {len(data)} bytes")
 
 
 def read_mesh(path: str | os.PathLike, fmt: str):
     """Read a mesh file with trimesh; scenes are flattened with their node transforms applied.
 
+    The declared structure is checked first (OBJ face indices, OFF counts, glTF sizes and URIs,
+    see :mod:`pointcvx.io.gltf`); materials are not read (no texture or ``mtllib`` is opened).
     Returns a ``trimesh.Trimesh`` in the file's units; raises :class:`InputError` when the file
     cannot be parsed or holds no triangles.
     """
@@ -36,12 +67,20 @@ def read_mesh(path: str | os.PathLike, fmt: str):
 
     p = check_readable(path)
     file_type = _TRIMESH_TYPE.get(fmt, fmt)
+    if fmt in ("obj", "off"):
+        data = p.read_bytes()
+        (check_obj_indices if fmt == "obj" else check_off_counts)(p, data)
+    elif fmt in ("glb", "gltf"):
+        from .gltf import check_gltf
+
+        check_gltf(p, fmt)
+    kwargs = {"skip_materials": True} if fmt in ("obj", "glb", "gltf") else {}
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            loaded = trimesh.load(str(p), file_type=file_type, force="mesh", process=False)
-    except (ValueError, IndexError, KeyError, TypeError, OSError, EOFError, AttributeError) as exc:
-        msg = first_line(exc)
+            loaded = trimesh.load(str(p), file_type=file_type, force="mesh", process=False, **kwargs)
+    except _PARSE_ERRORS as exc:
+        msg = first_line(exc, typed=not str(exc).strip() or isinstance(exc, (AssertionError, KeyError)))
         raise InputError(f"{p}: cannot read {file_type.upper()} mesh ({msg})") from None
     if isinstance(loaded, list):
         loaded = trimesh.util.concatenate(loaded)
@@ -53,14 +92,26 @@ def read_mesh(path: str | os.PathLike, fmt: str):
 def clean_mesh(mesh):
     """A copy of ``mesh`` with merged vertices and no degenerate or unused parts.
 
-    Raises :class:`InputError` when vertices are NaN/inf or nothing with area remains.
+    Vertices that no face uses are dropped whatever their coordinates; :class:`InputError` when a
+    face uses a NaN/inf vertex (or one beyond :data:`~pointcvx.cloud.MAX_COORDINATE`), or
+    nothing with area remains. ``mesh.metadata["non_finite_dropped"]`` counts the unused
+    non-finite vertices dropped.
     """
     import trimesh
 
-    vertices = check_points(np.asarray(mesh.vertices, dtype=np.float64), "mesh vertices")
+    vertices = np.asarray(mesh.vertices)
     faces = np.asarray(mesh.faces, dtype=np.int64)
     if faces.ndim != 2 or faces.shape[1] != 3 or faces.min() < 0 or faces.max() >= len(vertices):
         raise InputError("mesh faces reference missing vertices")
+    used = np.zeros(len(vertices), dtype=bool)
+    used[faces.ravel()] = True
+    bad = ~np.isfinite(vertices).all(axis=1)
+    dropped = int((bad & ~used).sum())
+    if dropped:
+        keep = ~(bad & ~used)
+        remap = np.cumsum(keep) - 1
+        vertices, faces = vertices[keep], remap[faces]
+    vertices = check_points(vertices, "mesh vertices used by faces")
     out = trimesh.Trimesh(vertices, faces, process=False)
     out.merge_vertices(merge_tex=True, merge_norm=True)
     keep = out.nondegenerate_faces(height=1e-12 * max(float(out.scale), 1e-300))
@@ -70,6 +121,8 @@ def clean_mesh(mesh):
     out.remove_unreferenced_vertices()
     if len(out.faces) == 0 or out.area <= 0:
         raise InputError("the mesh has no triangle with area: all faces are degenerate")
+    if dropped:
+        out.metadata["non_finite_dropped"] = dropped
     return out
 
 
@@ -78,12 +131,9 @@ def _random_directions(n: int, rng: np.random.Generator) -> np.ndarray:
     return d / np.linalg.norm(d, axis=1, keepdims=True)
 
 
-def inside_fraction(mesh, points: np.ndarray, n_rays: int = 8, seed: int = 0) -> np.ndarray:
-    """(m,) float in [0, 1]: share of ``n_rays`` random rays from each of (m, 3) ``points`` that
-    cross ``mesh`` an odd number of times (1 deep inside a closed surface, 0 outside).
-
-    Independent of face winding; uses Embree through open3d's RaycastingScene.
-    """
+def crossings(mesh, points: np.ndarray, n_rays: int = 8, seed: int = 0) -> np.ndarray:
+    """(m, n_rays) int: how many times each of ``n_rays`` random rays from each of (m, 3)
+    ``points`` crosses ``mesh`` (Embree through open3d's RaycastingScene)."""
     from ..syslibs import import_open3d
     o3d = import_open3d()
 
@@ -95,25 +145,83 @@ def inside_fraction(mesh, points: np.ndarray, n_rays: int = 8, seed: int = 0) ->
     origins = np.repeat(points.astype(np.float32), n_rays, axis=0)
     dirs = _random_directions(m * n_rays, rng).astype(np.float32)
     rays = o3d.core.Tensor(np.concatenate([origins, dirs], axis=1))
-    hits = scene.count_intersections(rays).numpy().reshape(m, n_rays)
-    return (hits % 2 == 1).mean(axis=1)
+    return scene.count_intersections(rays).numpy().reshape(m, n_rays)
 
 
-def face_outward_scores(mesh, n_rays: int = 8, seed: int = 0) -> np.ndarray:
-    """(f,) float in [-1, 1]: positive where a face normal points out of the solid.
+def inside_fraction(mesh, points: np.ndarray, n_rays: int = 8, seed: int = 0) -> np.ndarray:
+    """(m,) float in [0, 1]: share of ``n_rays`` random rays from each of (m, 3) ``points`` that
+    cross ``mesh`` an odd number of times (1 deep inside a closed surface, 0 outside).
+
+    Independent of face winding; uses Embree through open3d's RaycastingScene.
+    """
+    return (crossings(mesh, points, n_rays, seed) % 2 == 1).mean(axis=1)
+
+
+def side_points(mesh, faces: np.ndarray | None = None) -> np.ndarray:
+    """(2m, 3) float: points just behind, then just in front of, the centres of ``faces`` ((m,)
+    int, default all), offset along the normal a little, relative to the face's own size and the
+    mesh's scale."""
+    centers = np.asarray(mesh.triangles_center)
+    normals = np.asarray(mesh.face_normals)
+    delta = np.minimum(np.sqrt(mesh.area_faces) * 0.05, 1e-3 * float(mesh.scale))[:, None]
+    delta = np.maximum(delta, 1e-7 * float(mesh.scale))
+    if faces is not None:
+        centers, normals, delta = centers[faces], normals[faces], delta[faces]
+    return np.concatenate([centers - delta * normals, centers + delta * normals])
+
+
+def face_outward_scores(mesh, n_rays: int = 8, seed: int = 0, faces: np.ndarray | None = None) -> np.ndarray:
+    """(f,) float in [-1, 1] (or (m,) for the (m,) int ``faces`` given): positive where a face
+    normal points out of the solid.
 
     Score = inside share just behind the face minus inside share just in front of it. Near 0 for
     faces of open sheets, where both sides are outside.
     """
-    centers = np.asarray(mesh.triangles_center)
-    normals = np.asarray(mesh.face_normals)
-    # Offset a little, relative to the face's own size and the mesh's scale.
-    delta = np.minimum(np.sqrt(mesh.area_faces) * 0.05, 1e-3 * float(mesh.scale))[:, None]
-    delta = np.maximum(delta, 1e-7 * float(mesh.scale))
-    both = np.concatenate([centers - delta * normals, centers + delta * normals])
-    frac = inside_fraction(mesh, both, n_rays=n_rays, seed=seed)
-    f = len(centers)
+    frac = inside_fraction(mesh, side_points(mesh, faces), n_rays=n_rays, seed=seed)
+    f = len(frac) // 2
     return frac[:f] - frac[f:]
+
+
+#: The outward test casts rays from at most this many faces; larger meshes vote with a seeded
+#: uniform sample of their faces.
+ORIENT_FACES = 400_000
+#: Ray-mesh crossings the outward test may count in all. A ray crosses a real surface a few
+#: times, one through a soup of overlapping triangles hundreds of times, and the cost follows
+#: the crossings: the sample shrinks to stay within this, as measured on ORIENT_PILOT faces.
+ORIENT_CROSSINGS = 10_000_000
+ORIENT_PILOT = 512
+
+
+def scored_faces(mesh, n_rays: int, seed: int, labels: np.ndarray | None = None) -> np.ndarray | None:
+    """(m,) int sorted faces the outward test scores, or None for all of them: a seeded sample
+    when the mesh has more than :data:`ORIENT_FACES` faces or its rays would cross it more than
+    :data:`ORIENT_CROSSINGS` times in all (estimated from a pilot of :data:`ORIENT_PILOT` faces).
+
+    With ``labels`` ((f,) int piece of each face) the sample goes round the pieces: every piece
+    gets its first face before any gets a second, so small pieces vote too.
+    """
+    f = len(mesh.faces)
+    pilot = np.random.default_rng([seed, 1]).choice(f, min(f, ORIENT_PILOT), replace=False)
+    per_face = crossings(mesh, side_points(mesh, pilot), n_rays, seed).sum() / max(len(pilot), 1)
+    m = min(f, ORIENT_FACES, max(ORIENT_PILOT, int(ORIENT_CROSSINGS / max(per_face, 1e-9))))
+    if m >= f:
+        return None
+    rng = np.random.default_rng([seed, 2])
+    if labels is None:
+        return np.sort(rng.choice(f, m, replace=False))
+    grouped = np.argsort(labels, kind="stable")
+    grouped = grouped[np.lexsort((rng.random(f), labels[grouped]))]  # by piece, random within
+    first = np.searchsorted(labels[grouped], labels[grouped])
+    rank = np.arange(f) - first  # 0 for each piece's first face in that order, 1 for its second...
+    return np.sort(grouped[np.lexsort((rng.random(f), rank))[:m]])
+
+
+def piece_volumes(mesh, labels: np.ndarray) -> np.ndarray:
+    """(pieces,) float: signed volume of each piece's faces seen from the mesh's vertex centroid
+    (positive when they face away from it): the vote of pieces with no scored face."""
+    tri = np.asarray(mesh.triangles) - np.asarray(mesh.vertices).mean(axis=0)
+    vol = np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2]))
+    return np.bincount(labels, weights=vol)
 
 
 def winding_signs(mesh) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -156,7 +264,9 @@ def orient_outward(mesh, n_rays: int = 8, seed: int = 0) -> tuple[object, int, s
 
     Each connected piece is wound consistently, then turned by its area-weighted ray-parity
     vote. In pieces that cannot be wound consistently, faces whose own rays say strongly that
-    they point inward are flipped alone. The input mesh is not modified.
+    they point inward are flipped alone. The work is bounded (:func:`scored_faces`): on very
+    large meshes, and on soups of overlapping triangles that every ray crosses hundreds of
+    times, a seeded sample of faces votes. The input mesh is not modified.
     """
     import trimesh
 
@@ -169,13 +279,24 @@ def orient_outward(mesh, n_rays: int = 8, seed: int = 0) -> tuple[object, int, s
     sign, labels, conflicted = winding_signs(mesh)
     faces = np.asarray(mesh.faces).copy()
     wound = trimesh.Trimesh(np.asarray(mesh.vertices), _flip(faces, sign < 0), process=False)
-    scores = face_outward_scores(wound, n_rays=n_rays, seed=seed)
-    vote = np.bincount(labels, weights=wound.area_faces * scores)
+    sample = scored_faces(wound, n_rays, seed, labels)
+    method = f"ray parity ({n_rays} rays per side)"
+    if sample is None:
+        scores = face_outward_scores(wound, n_rays=n_rays, seed=seed)
+        vote = np.bincount(labels, weights=wound.area_faces * scores)
+    else:  # bounded work: a seeded sample votes; pieces it misses go by their signed volume
+        scores = np.zeros(len(faces))
+        scores[sample] = face_outward_scores(wound, n_rays=n_rays, seed=seed, faces=sample)
+        vote = np.bincount(labels, weights=wound.area_faces * scores)
+        missed = np.bincount(labels[sample], minlength=len(vote)) == 0
+        vote[missed] = piece_volumes(wound, labels)[missed]
+        method = f"ray parity ({n_rays} rays per side, from {len(sample)} of {len(faces)} faces)"
+        log.info("outward test on a sample of %d of %d faces (bounded work)", len(sample), len(faces))
     turn = np.where(vote[labels] < 0, -1.0, 1.0)
     turn[conflicted & (scores * turn <= -0.75)] *= -1.0
     total = sign * turn
     out = trimesh.Trimesh(np.asarray(mesh.vertices), _flip(faces, total < 0), process=False)
-    return out, int((total < 0).sum()), f"ray parity ({n_rays} rays per side)"
+    return out, int((total < 0).sum()), method
 
 
 def _flip(faces: np.ndarray, which: np.ndarray) -> np.ndarray:
@@ -233,6 +354,8 @@ def cloud_from_mesh(
         normals=f"face normals, outward by {method}",
         faces_flipped=n_flipped,
     )
+    if cleaned.metadata.get("non_finite_dropped"):
+        details["non_finite_dropped"] = int(cleaned.metadata["non_finite_dropped"])
     return OrientedCloud(
         points, normals, modality=modality, mesh=oriented, face_index=face, info=details
     )

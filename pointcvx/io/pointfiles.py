@@ -253,12 +253,60 @@ def _pcd_header(data: bytes, p: Path) -> tuple[dict[str, list[str]], int]:
             raise InputError(f"{p}: corrupted PCD: the header never ends")
 
 
-def read_pcd(path: str | os.PathLike) -> Arrays:
+def _pcd_frame(fields: dict[str, list[str]], n: int, p: Path, info: dict | None) -> None:
+    """Record in ``info`` the organisation (``organized``: [width, height], for frames of more
+    than one row) and the sensor pose (``viewpoint``: tx ty tz qw qx qy qz) the header gives."""
+    if info is None:
+        return
+    try:
+        width, height = int(fields["WIDTH"][0]), int(fields.get("HEIGHT", ["1"])[0])
+    except (KeyError, IndexError, ValueError):
+        width = height = 0
+    if height > 1 and width * height == n:
+        info["organized"] = [width, height]
+    if "VIEWPOINT" in fields:
+        try:
+            pose = [float(v) for v in fields["VIEWPOINT"]]
+        except ValueError:
+            pose = []
+        if len(pose) == 7 and all(np.isfinite(pose)):
+            info["viewpoint"] = pose
+        else:
+            log.debug("%s: unreadable VIEWPOINT %s ignored", p, fields["VIEWPOINT"])
+
+
+#: Most bytes one LZF byte can expand to (a 3-byte back-reference copies up to 264 bytes).
+LZF_MAX_RATIO = 88
+
+
+def _check_pcd_compressed(data: bytes, offset: int, n: int, point_bytes: tuple[int, int], p: Path) -> None:
+    """Check the sizes a binary_compressed PCD's data block declares before open3d allocates them:
+    the compressed block lies in the file, and its raw size is what ``n`` points take
+    (``point_bytes``: with and without padding fields) and what LZF can expand the block to."""
+    if len(data) < offset + 8:
+        raise InputError(f"{p}: truncated PCD: the compressed data block has no size header")
+    packed, raw = struct.unpack_from("<II", data, offset)
+    have = len(data) - offset - 8
+    if packed > have:
+        raise InputError(f"{p}: truncated PCD: the compressed block declares {packed} bytes, the file "
+                         f"holds {have}")
+    if raw not in (n * point_bytes[0], n * point_bytes[1]):
+        raise InputError(f"{p}: corrupted PCD: the header declares {n} points ({n * point_bytes[0]} bytes), "
+                         f"the compressed block {raw} bytes")
+    if raw > LZF_MAX_RATIO * packed + 64:
+        raise InputError(f"{p}: corrupted PCD: {packed} compressed bytes cannot hold the {raw} bytes of "
+                         f"{n} points")
+
+
+def read_pcd(path: str | os.PathLike, info: dict | None = None) -> Arrays:
     """PCD v0.7 (``DATA ascii``, ``binary`` or ``binary_compressed``): x y z, optional
-    normal_x/normal_y/normal_z and packed ``rgb``/``rgba``.
+    normal_x/normal_y/normal_z and packed ``rgb``/``rgba``; rows stay in the file's order, NaN
+    rows ("no measurement" in organised frames) included.
 
     ASCII and binary are parsed here strictly (open3d silently pads a truncated ASCII file);
-    binary_compressed goes through open3d, its point count checked against the header.
+    binary_compressed goes through open3d once its block sizes are checked, its point count
+    checked against the header. With ``info``, the frame's organisation and viewpoint are
+    recorded there (:func:`_pcd_frame`).
     """
     p = check_readable(path)
     data = p.read_bytes()
@@ -277,17 +325,20 @@ def read_pcd(path: str | os.PathLike) -> Arrays:
         raise InputError(f"{p}: corrupted PCD header: FIELDS/SIZE/TYPE/COUNT disagree or lack x y z")
     if n <= 0:
         raise InputError(f"{p}: the PCD holds no points")
-    if mode == "binary_compressed":
-        return _read_pcd_open3d(p, n)
     columns: list[tuple[str, str]] = []
     for name, size, typ, count in zip(names, sizes, types, counts, strict=True):
         code = _PCD_TYPES.get((typ, size))
-        if code is None:
-            raise InputError(f"{p}: corrupted PCD header: unsupported TYPE {typ} SIZE {size}")
+        if code is None or count <= 0:
+            raise InputError(f"{p}: corrupted PCD header: unsupported TYPE {typ} SIZE {size} COUNT {count}")
         columns += [(name if count == 1 else f"{name}_{i}", code) for i in range(count)]
         if name == "_":  # padding fields are legal and may repeat
             columns[-count:] = [(f"_pad{len(columns)}_{i}", code) for i in range(count)]
     dtype = np.dtype(columns)
+    _pcd_frame(fields, n, p, info)
+    if mode == "binary_compressed":
+        unpadded = sum(s * c for name, s, c in zip(names, sizes, counts, strict=True) if name != "_")
+        _check_pcd_compressed(data, offset, n, (dtype.itemsize, unpadded), p)
+        return _read_pcd_open3d(p, n)
     if mode == "binary":
         need = n * dtype.itemsize
         have = len(data) - offset
@@ -295,6 +346,9 @@ def read_pcd(path: str | os.PathLike) -> Arrays:
             raise InputError(f"{p}: truncated PCD: {have} data bytes, {n} points need {need}")
         table = np.frombuffer(data, dtype=dtype, count=n, offset=offset)
     elif mode == "ascii":
+        if n > (len(data) - offset) // (2 * len(columns)):  # each value takes a digit and a separator
+            raise InputError(f"{p}: truncated PCD: the header declares {n} points, the file holds "
+                             f"{len(data) - offset} data bytes")
         lines = [ln for ln in data[offset:].decode("ascii", errors="replace").splitlines() if ln.strip()]
         if len(lines) < n:
             raise InputError(f"{p}: truncated PCD: {len(lines)} data rows for {n} points")
@@ -337,43 +391,112 @@ def _read_pcd_open3d(p: Path, n: int) -> Arrays:
     return points, normals, colors
 
 
+#: Fewest bytes of a point record of each LAS point data format (0-10).
+_LAS_RECORD = {0: 20, 1: 28, 2: 26, 3: 34, 4: 57, 5: 63, 6: 30, 7: 36, 8: 38, 9: 59, 10: 67}
+#: Points decoded at a time: memory follows what the file really holds, not what it declares.
+LAS_CHUNK = 1_000_000
+
+
+def check_las_header(p: Path, head: bytes, size: int) -> tuple[int, bool]:
+    """Validate a LAS/LAZ public header block before laspy reads anything; returns the declared
+    point count and whether the points are LAZ-compressed.
+
+    Every field that sizes a read is checked against the file: version 1.0-1.4, header size,
+    offset to the points, the VLR count, point format and record length, scale factors, and for
+    uncompressed points the declared count times the record length.
+    """
+    if len(head) < 227:
+        raise InputError(f"{p}: truncated LAS: {size} bytes, shorter than the 227-byte header")
+    major, minor = head[24], head[25]
+    header_size, offset, n_vlrs = struct.unpack_from("<HII", head, 94)
+    fmt_id, record = struct.unpack_from("<BH", head, 104)
+    (legacy,) = struct.unpack_from("<I", head, 107)
+    scales = struct.unpack_from("<3d", head, 131)
+    offsets = struct.unpack_from("<3d", head, 155)
+    if major != 1 or minor > 4:
+        raise InputError(f"{p}: corrupted LAS header: version {major}.{minor} (1.0-1.4 are read)")
+    least = 375 if minor >= 4 else 235 if minor == 3 else 227
+    if not least <= header_size <= size or not header_size <= offset <= size:
+        raise InputError(f"{p}: corrupted LAS header: header size {header_size} and point offset {offset} "
+                         f"do not fit a {size}-byte file")
+    if n_vlrs * 54 > offset - header_size:
+        raise InputError(f"{p}: corrupted LAS header: {n_vlrs} variable-length records cannot fit in the "
+                         f"{offset - header_size} bytes before the points")
+    compressed = bool(fmt_id & 0x80) or bool(fmt_id & 0x40)
+    point_format = fmt_id & 0x3F
+    if point_format not in _LAS_RECORD or record < _LAS_RECORD[point_format]:
+        raise InputError(f"{p}: corrupted LAS header: point format {point_format} with {record}-byte records")
+    if not all(np.isfinite(scales)) or 0.0 in scales or not all(np.isfinite(offsets)):
+        raise InputError(f"{p}: corrupted LAS header: scale factors {scales} and offsets {offsets}")
+    count = legacy
+    if minor >= 4:
+        (count64,) = struct.unpack_from("<Q", head, 247)
+        count = count64 or legacy
+    if not compressed and offset + count * record > size:
+        raise InputError(f"{p}: truncated or corrupted LAS: the header declares {count} points of {record} "
+                         f"bytes, but the file holds {size - offset} bytes of points")
+    return count, compressed
+
+
 def read_las(path: str | os.PathLike) -> Arrays:
-    """LAS (and LAZ when laspy has a backend): scaled x, y, z and RGB when the point format has it."""
+    """LAS (and LAZ when laspy has a backend): scaled x, y, z and RGB when the point format has it.
+
+    The header is checked first (:func:`check_las_header`); points are then decoded
+    :data:`LAS_CHUNK` at a time, so a LAZ file declaring far more points than it holds fails when
+    its data ends, having allocated only what it held.
+    """
     try:
         import laspy
     except ImportError:
         raise MissingExtraError("LAS input", "las", "laspy") from None
     p = check_readable(path)
+    with open(p, "rb") as f:
+        head = f.read(375)
+    declared, _ = check_las_header(p, head, p.stat().st_size)
+    xyz, rgb = [], []
+    quiet = logging.getLogger("laspy")  # laspy logs its errors too: the exception says it once
+    level = quiet.level
+    quiet.setLevel(logging.CRITICAL)
     try:
-        las = laspy.read(str(p))
+        with laspy.open(str(p)) as reader:
+            dims = set(reader.header.point_format.dimension_names)
+            has_rgb = {"red", "green", "blue"} <= dims
+            for chunk in reader.chunk_iterator(LAS_CHUNK):
+                xyz.append(np.stack([np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z)], axis=1))
+                if has_rgb:
+                    rgb.append(np.stack([np.asarray(chunk.red), np.asarray(chunk.green),
+                                         np.asarray(chunk.blue)], axis=1))
+    except MemoryError:
+        raise
     except laspy.errors.LaspyException as exc:
-        if "LazBackend" in str(exc) or "laz" in str(exc).lower():
+        if "LazBackend" in str(exc) or "laz" in str(exc).lower() and "backend" in str(exc).lower():
             raise MissingExtraError("compressed LAZ input", "las", "lazrs") from None
-        raise InputError(f"{p}: corrupted LAS ({first_line(exc)})") from None
-    except (ValueError, OSError, EOFError, struct.error, IndexError) as exc:
-        msg = first_line(exc)
-        raise InputError(f"{p}: truncated or corrupted LAS ({msg})") from None
-    declared = int(las.header.point_count)
-    points = np.stack([np.asarray(las.x), np.asarray(las.y), np.asarray(las.z)], axis=1).astype(np.float64)
+        raise InputError(f"{p}: truncated or corrupted LAS ({first_line(exc)})") from None
+    except Exception as exc:  # noqa: BLE001 - laspy and its LAZ backend raise many types on bad data
+        raise InputError(f"{p}: truncated or corrupted LAS ({first_line(exc, typed=True)})") from None
+    finally:
+        quiet.setLevel(level)
+    points = np.concatenate(xyz).astype(np.float64) if xyz else np.zeros((0, 3))
     if len(points) != declared:
         raise InputError(f"{p}: truncated LAS: {len(points)} of the {declared} declared points")
     colors = None
-    dims = set(las.point_format.dimension_names)
-    if {"red", "green", "blue"} <= dims:
-        rgb = np.stack([np.asarray(las.red), np.asarray(las.green), np.asarray(las.blue)], axis=1)
-        if rgb.any():
-            colors = colors_to_unit(rgb, rgb.dtype)
+    if rgb:
+        rgb_all = np.concatenate(rgb)
+        if rgb_all.any():
+            colors = colors_to_unit(rgb_all, rgb_all.dtype)
     return points, None, colors
 
 
-def read_scan(path: str | os.PathLike, fmt: str) -> Arrays:
-    """Dispatch on ``fmt`` (``ply-points``, ``obj-points``, ``pcd``, ``xyz``, ``pts``, ``las``)."""
+def read_scan(path: str | os.PathLike, fmt: str, info: dict | None = None) -> Arrays:
+    """Dispatch on ``fmt`` (``ply-points``, ``obj-points``, ``pcd``, ``xyz``, ``pts``, ``las``);
+    readers that know more about the capture (a PCD's organisation and viewpoint) add it to
+    ``info`` when given."""
     if fmt == "ply-points":
         return read_ply_points(path)
     if fmt == "obj-points":
         return read_obj_points(path)
     if fmt == "pcd":
-        return read_pcd(path)
+        return read_pcd(path, info)
     if fmt in ("xyz", "pts"):
         return read_xyz(path, fmt)
     if fmt == "las":

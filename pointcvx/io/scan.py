@@ -5,6 +5,8 @@ The file readers (PLY vertices, OBJ ``v`` lines, PCD, XYZ/PTS, LAS) are in
 :class:`~pointcvx.cloud.OrientedCloud`:
 
 1. non-finite coordinates are rejected (:class:`~pointcvx.errors.InputError` naming how many);
+   files are cleaned first: :func:`load_scan_file` drops and counts the rows without a usable
+   position (NaN is "no measurement" in organised depth frames), see :func:`drop_unusable`;
 2. optional voxel down-sampling (points and colours averaged per voxel), and with ``n_points``
    a seeded thinning of very large inputs;
 3. statistical outlier removal (mean distance to the k nearest neighbours above the global mean
@@ -16,6 +18,7 @@ The file readers (PLY vertices, OBJ ``v`` lines, PCD, XYZ/PTS, LAS) are in
    is consistent with that result (:func:`orient_given_normals`).
 
 ``cloud.info`` records ``normals`` (how they were obtained), ``normals_flipped``,
+``non_finite_dropped`` (files), ``organized`` and ``viewpoint`` (PCD frames),
 ``dropped_outliers``, ``one_sided`` and ``openness``, ``colors``, ``input_points`` and, when they
 happened, ``voxel_downsampled_from`` and ``presampled_from``.
 """
@@ -30,7 +33,7 @@ from scipy import sparse
 from scipy.sparse import csgraph
 from scipy.spatial import cKDTree
 
-from ..cloud import OrientedCloud, check_extent, check_points
+from ..cloud import MAX_COORDINATE, OrientedCloud, check_extent, check_points
 from ..errors import InputError
 from .orient import estimate_normals, orient_normals
 from .outliers import outlier_mask
@@ -169,6 +172,7 @@ def cloud_from_points(
     seed: int = 0,
     modality: str = "scan",
     info: dict | None = None,
+    cap: bool = True,
 ) -> OrientedCloud:
     """Clean (n, 3) ``points`` and give them consistent outward unit normals.
 
@@ -195,6 +199,10 @@ def cloud_from_points(
         ``scan`` for scan files; ``points`` for bare arrays.
     info : dict, optional
         Extra provenance merged into the cloud's ``info``.
+    cap : bool
+        Apply the ``n_points`` cap here. ``load`` passes False: it caps after isolating the
+        object (:func:`pointcvx.io.finalize`), so a frame whose object is a quarter of its points
+        still gives the object the whole budget.
 
     Returns
     -------
@@ -261,21 +269,58 @@ def cloud_from_points(
     meta["normals_flipped"] = int(flipped)
     meta["colors"] = colors is not None
     cloud = OrientedCloud(pts, normals, colors=colors, modality=modality, info=meta)
-    if n_points is not None:
+    if n_points is not None and cap:
         cloud = cloud.resample(n_points, seed=seed)
     return cloud
+
+
+def usable_rows(points: np.ndarray) -> tuple[np.ndarray, int, int]:
+    """(n,) bool: rows of (n, 3) ``points`` that are finite and within :data:`MAX_COORDINATE`;
+    and how many are non-finite and how many lie beyond it."""
+    finite = np.isfinite(points).all(axis=1)
+    magnitude = np.abs(np.where(finite[:, None], points, 0.0)).max(axis=1, initial=0.0)
+    far = finite & (magnitude > MAX_COORDINATE)
+    return finite & ~far, int((~finite).sum()), int(far.sum())
+
+
+def drop_unusable(points: np.ndarray, normals: np.ndarray | None, colors: np.ndarray | None,
+                  meta: dict) -> Arrays:
+    """Drop the rows of a scan whose coordinates are NaN or infinite (in organised depth frames
+    they mean "no measurement") or beyond :data:`MAX_COORDINATE`, counting them in ``meta``
+    (``non_finite_dropped``, and ``out_of_range_dropped`` when any). :class:`InputError` when
+    fewer than 4 usable points remain."""
+    points = np.asarray(points, dtype=np.float64)
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise InputError(f"points must have shape (n, 3), got {points.shape}")
+    keep, non_finite, far = usable_rows(points)
+    meta["non_finite_dropped"] = non_finite
+    if far:
+        meta["out_of_range_dropped"] = far
+    left = int(keep.sum())
+    if left < 4:
+        beyond = f", {far} beyond {MAX_COORDINATE:g}" if far else ""
+        raise InputError(f"only {left} of {len(points)} points are usable ({non_finite} NaN or infinite"
+                         f"{beyond}): at least 4 finite points are needed")
+    if left == len(points):
+        return points, normals, colors
+    log.info("dropped %d non-finite and %d out-of-range points of %d", non_finite, far, len(points))
+    return (points[keep], None if normals is None else np.asarray(normals)[keep],
+            None if colors is None else np.asarray(colors)[keep])
 
 
 def load_scan_file(path: str | os.PathLike, fmt: str, opts) -> OrientedCloud:
     """Read a point-cloud file (``fmt`` from :func:`pointcvx.io.sniff.detect`) and orient it.
 
-    ``opts`` is a :class:`pointcvx.io.options.LoadOptions`; the scan fields are passed to
+    Rows without a usable position are dropped first (:func:`drop_unusable`). ``opts`` is a
+    :class:`pointcvx.io.options.LoadOptions`; the scan fields are passed to
     :func:`cloud_from_points`. The cloud stays in the file's units (``load`` normalises).
     """
-    points, normals, colors = read_scan(path, fmt)
+    meta: dict = {"source": str(path)}
+    points, normals, colors = read_scan(path, fmt, meta)
     log.debug("%s: read %d points (normals: %s, colours: %s)", path, len(points),
               normals is not None, colors is not None)
     try:
+        points, normals, colors = drop_unusable(points, normals, colors, meta)
         return cloud_from_points(
             points, normals, colors,
             outlier_neighbors=opts.outlier_neighbors,
@@ -285,7 +330,8 @@ def load_scan_file(path: str | os.PathLike, fmt: str, opts) -> OrientedCloud:
             n_points=opts.n_points,
             seed=opts.seed,
             modality="scan",
-            info={"source": str(path)},
+            info=meta,
+            cap=False,
         )
     except InputError as exc:  # name the file in checks that only know the arrays
         if str(path) in str(exc):

@@ -6,6 +6,7 @@ import gzip
 import os
 import re
 import struct
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -95,9 +96,21 @@ def _text_kind(text: str, path: Path) -> Detected | None:
     return None
 
 
+def _bad_binary_stl(p: Path, head: bytes, size: int) -> None:
+    """Raise the :class:`InputError` of a binary ``.stl`` whose size disagrees with its count."""
+    if size < 84:
+        raise InputError(f"{p}: truncated binary STL: {size} bytes, shorter than its 84-byte header")
+    (count,) = struct.unpack("<I", head[80:84])
+    if count == 0 and size == 84:
+        raise InputError(f"{p}: the binary STL holds no triangles")
+    raise InputError(f"{p}: truncated or corrupted binary STL: its header declares {count} triangles "
+                     f"({84 + 50 * count} bytes), the file has {size}")
+
+
 def detect(path: str | os.PathLike) -> Detected:
     """Sniff ``path``; :class:`UnknownFormatError` when nothing matches, :class:`InputError` when
-    the file is missing or empty."""
+    the file is missing, empty or not a regular file, when a PLY header declares more than the
+    file holds, or when a binary ``.stl`` disagrees with its own triangle count."""
     p = check_readable(path)
     size = p.stat().st_size
     with open(p, "rb") as f:
@@ -113,7 +126,7 @@ def detect(path: str | os.PathLike) -> Detected:
         try:
             with gzip.open(p, "rb") as g:
                 inner = g.read(4)
-        except (OSError, EOFError):
+        except (OSError, EOFError, zlib.error):
             raise InputError(f"{p}: corrupted gzip stream") from None
         if inner == b"NGSP":
             return Detected("spz", "splat")
@@ -132,12 +145,15 @@ def detect(path: str | os.PathLike) -> Detected:
             return Detected("stl", "mesh")
     try:
         text = head.decode("utf-8")
-    except UnicodeDecodeError:
-        text = None
-    if text is not None and "\x00" not in text:
+    except UnicodeDecodeError as exc:  # a character cut by the 64 KiB read still counts as text
+        text = head[:exc.start].decode("utf-8") if exc.start >= len(head) - 3 and len(head) == 65536 else None
+    is_text = text is not None and "\x00" not in text
+    if is_text:
         found = _text_kind(text, p)
         if found is not None:
             return found
+    elif ext == ".stl":  # binary, yet its size does not match its triangle count
+        _bad_binary_stl(p, head, size)
     # .splat (antimatter15): headerless 32-byte records; only the extension can tell.
     if ext == ".splat":
         if size % 32:

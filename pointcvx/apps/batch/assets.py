@@ -114,6 +114,8 @@ def read_manifest_file(path: str | os.PathLike) -> list[tuple[str, str | None]]:
             data = json.loads(text)
         except json.JSONDecodeError as exc:
             raise InputError(f"{p}: not a JSON manifest ({exc.msg} at line {exc.lineno})") from None
+        except RecursionError:
+            raise InputError(f"{p}: not a JSON manifest (nested too deeply)") from None
         if not isinstance(data, list):
             raise InputError(f"{p}: a JSON manifest must be a list of paths or of "
                              "{\"path\": ..., \"id\": ...} objects")

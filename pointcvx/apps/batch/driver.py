@@ -17,7 +17,16 @@ from .assets import Asset, asset_seed, find_assets
 from .guard import GRACE, MEMORY_SHARE, machine_memory_mb
 from .options import BatchOptions
 from .pools import LocalPool, RayPool, import_ray, ray_session
-from .records import MANIFEST, BatchReport, Manifest, is_done, report_row, report_summary, write_reports
+from .records import (
+    MANIFEST,
+    BatchReport,
+    Manifest,
+    is_done,
+    output_path,
+    report_row,
+    report_summary,
+    write_reports,
+)
 
 log = logging.getLogger(__name__)
 
@@ -213,13 +222,18 @@ def run_batch(
 
         def on_result(asset: Asset, outcome: dict) -> None:
             nonlocal finished
-            from ...export import write_files
+            from ...export import main_file, output_folder, write_files
 
             rec = dict(outcome["record"])
             if rec.get("status") == "done":
+                target = output_path(out, asset.id, opts.format)
+                folder = output_folder(target, opts.format)  # a folder format: written whole
+                main = main_file(target, opts.format)
+                about = {"format": opts.format, "main": main.name if main is not None else None}
                 try:
                     write_files({out / rel: data for rel, data in outcome["files"].items()},
-                                overwrite=True, protect=[asset.path])
+                                overwrite=True, protect=[asset.path], folder=folder,
+                                about=about if folder is not None else None)
                 except (OutputError, OSError) as exc:
                     rec.update(status="failed", error=f"writing the hulls: {first_line(exc, typed=True)}")
             rec["finished"] = datetime.now(timezone.utc).isoformat(timespec="seconds")

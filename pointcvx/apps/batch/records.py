@@ -30,7 +30,7 @@ COLUMNS = ("id", "status", "error", "hulls", "max_concavity", "mean_concavity", 
 
 def output_path(outdir: str | os.PathLike, asset_id: str, format: str) -> Path:
     """Where asset ``asset_id``'s hulls go: ``OUTDIR/hulls/<id><ext>`` (folder formats: the folder
-    ``OUTDIR/hulls/<id>/``, see :mod:`pointcvx.export`)."""
+    ``OUTDIR/hulls/<id>_<format>/``, written whole, see :mod:`pointcvx.export`)."""
     from ...export import EXTENSIONS
 
     return Path(outdir) / HULLS / f"{asset_id}{EXTENSIONS[format]}"
@@ -114,7 +114,8 @@ class BatchReport:
 
 def is_done(rec: dict | None, config: str, outdir: Path) -> bool:
     """Whether manifest record ``rec`` says its asset is done with settings ``config`` (a
-    fingerprint) and its files are still under ``outdir``."""
+    fingerprint) and its files are still under ``outdir`` (a folder output appears whole or not
+    at all, so its files there are all of it)."""
     return (rec is not None and rec.get("status") == "done" and rec.get("config") == config
             and all((outdir / f).is_file() for f in rec.get("files") or ()))
 

@@ -65,7 +65,7 @@ def run_asset(asset: dict, options: BatchOptions, outdir: str) -> dict:
         line); ``recycle``: a limit interrupted the asset, so the worker's state may be broken
         (half-done imports...) and the driver replaces it.
     """
-    from ...export import main_file, plan
+    from ...export import main_file, output_folder, plan
 
     seed = asset_seed(options.seed, asset["id"])
     record: dict[str, Any] = {"id": asset["id"], "path": asset["path"], "status": "failed", "error": "",
@@ -94,7 +94,8 @@ def run_asset(asset: dict, options: BatchOptions, outdir: str) -> dict:
         summary = result.summary()
         record.update(status="done", hulls=summary["hulls"], max_concavity=summary["max_concavity"],
                       mean_concavity=summary["mean_concavity"], points=summary["points"],
-                      output=(main if main is not None else target.with_suffix("")).relative_to(root)
+                      output=(main if main is not None else output_folder(target, options.format))
+                      .relative_to(root)
                       .as_posix(), files=sorted(files))
     # An asset may fail in any way (bad file, library error, limits): record it and go on.
     except Exception as exc:  # noqa: BLE001

@@ -12,8 +12,13 @@ For every shape of every dataset (a folder, searched recursively, or one file):
    with a wall-clock timeout. The worker reports the method call's wall time (no interpreter
    start, no imports, no I/O) and its peak resident memory (``VmHWM`` on Linux; it includes the
    worker's interpreter and imports). A timeout or a crash becomes an error row; the bench goes
-   on.
-3. The hulls are scored in the calling process with :func:`pointcvx.evaluate.evaluate` (hull
+   on. This is the warm time: the worker first does what a long-running process does once
+   (imports, model weights, one small decomposition).
+3. Each fixed-setting run is then timed once more as a one-shot process, the way a user runs the
+   method on one file (:mod:`.oneshot`): ``python -m pointcvx decompose SHAPE -o OUT.obj`` at the
+   bench's settings, and thin Python wrappers for the baselines, timed from the process's start
+   to its exit (``oneshot_seconds``; off with ``oneshot=False``).
+4. The hulls are scored in the calling process with :func:`pointcvx.evaluate.evaluate` (hull
    count, concavity, Chamfer reconstruction, volume IoU, coverage), outside the timed call.
 
 Settings
@@ -35,38 +40,56 @@ matched
 Outputs (all written atomically) in OUTDIR: ``results.csv`` (one row per dataset, shape, method,
 setting and pointcvx threshold; see :data:`COLUMNS`), ``summary.md`` (means and medians per
 dataset and category, paired win/tie/loss counts of pointcvx against each baseline at matched
-granularity, ratio of median times), ``granularity.png`` (when matplotlib is installed) and the
-hulls of every row under ``hulls/<method>/<setting>/<shape>.obj``. Running again with the same
-OUTDIR skips the rows already in ``results.csv`` (unless ``overwrite``).
+granularity, ratios of median times, one-shot and warm), ``granularity.png`` (when matplotlib
+is installed) and the hulls of every row under ``hulls/<method>/<setting>/<shape>.obj``.
+Running again with the same OUTDIR skips the rows already in ``results.csv`` (unless
+``overwrite``).
 
 Modules, in the order a benchmark uses them: :mod:`.options` (:class:`BenchOptions`),
 :mod:`.shapes` (finding the shapes), :mod:`.mesh` (the normalised mesh), :mod:`.methods` (each
 method's parameters), :mod:`.launch` and :mod:`.worker` (one run in its own process),
-:mod:`.search` (matched granularity), :mod:`.runs` (every run of one shape), :mod:`.results`
-(``results.csv``), :mod:`.summary` and :mod:`.plot` (``summary.md``, ``granularity.png``),
-:mod:`.driver` (:func:`run_bench`).
+:mod:`.oneshot` (the same run as a user's whole process), :mod:`.search` (matched
+granularity), :mod:`.runs` (every run of one shape), :mod:`.results` (``results.csv``),
+:mod:`.summary` and :mod:`.plot` (``summary.md``, ``granularity.png``), :mod:`.driver`
+(:func:`run_bench`). The names below are imported from them on first use.
 """
 
 from __future__ import annotations
 
-from .driver import Progress, run_bench
-from .launch import Run
-from .methods import (
-    COACD_RANGE,
-    COACD_THRESHOLD,
-    VHACD_CONCAVITY,
-    VHACD_RANGE,
-    VHACD_RESOLUTION,
-    VHACDX_MAX_HULLS,
-    VHACDX_RESOLUTION,
-)
-from .options import BASELINES, METHODS, PACKAGES, BenchOptions
-from .plot import plot_granularity
-from .results import COLUMNS, METRICS, BenchReport, read_results, write_results
-from .runs import ShapeBench, bench_shape
-from .search import search_parameter
-from .shapes import ShapeEntry, find_shapes
-from .summary import TIE_RTOL, final_summary, summarize, win_tie_loss
+import importlib
+
+#: Public name -> the module of this package that defines it, imported on first use (PEP 562):
+#: a worker or one-shot process that runs one module (``python -m pointcvx.apps.bench.oneshot``)
+#: loads no other.
+_NAMES = {
+    "Progress": "driver", "run_bench": "driver",
+    "Run": "launch",
+    "COACD_RANGE": "methods", "COACD_THRESHOLD": "methods", "VHACD_CONCAVITY": "methods",
+    "VHACD_RANGE": "methods", "VHACD_RESOLUTION": "methods", "VHACDX_MAX_HULLS": "methods",
+    "VHACDX_RESOLUTION": "methods",
+    "BASELINES": "options", "METHODS": "options", "PACKAGES": "options", "BenchOptions": "options",
+    "plot_granularity": "plot",
+    "COLUMNS": "results", "METRICS": "results", "BenchReport": "results", "read_results": "results",
+    "write_results": "results",
+    "ShapeBench": "runs", "bench_shape": "runs",
+    "search_parameter": "search",
+    "ShapeEntry": "shapes", "find_shapes": "shapes",
+    "TIE_RTOL": "summary", "final_summary": "summary", "summarize": "summary",
+    "win_tie_loss": "summary",
+}
+
+
+def __getattr__(name: str):
+    if name not in _NAMES:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(f".{_NAMES[name]}", __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_NAMES))
+
 
 __all__ = [
     "BASELINES",

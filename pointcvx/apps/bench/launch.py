@@ -37,6 +37,19 @@ class Run:
     reused: bool = False
 
 
+def worker_env(threads: int | None = None) -> dict:
+    """The environment of a run's process: this one's, with the package first on
+    ``PYTHONPATH`` and, when ``threads`` is set, the thread variables of OpenMP and the BLAS
+    libraries (which torch and NumPy read at start) at ``threads``."""
+    env = dict(os.environ)
+    root = str(PACKAGE_ROOT)
+    env["PYTHONPATH"] = root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
+    if threads:
+        for name in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
+            env[name] = str(int(threads))
+    return env
+
+
 def launch(job: dict, stem: Path, timeout: float, param: float, shape: str = "") -> Run:
     """Run ``job`` (see :mod:`.worker`) in a fresh worker process in ``stem``'s folder, killed
     after ``timeout`` seconds. The job file and the worker's log go next to ``stem``; a timeout
@@ -44,9 +57,7 @@ def launch(job: dict, stem: Path, timeout: float, param: float, shape: str = "")
     method = job["method"]
     job_file = stem.with_suffix(".job.json")
     job_file.write_text(json.dumps(job))
-    env = dict(os.environ)
-    root = str(PACKAGE_ROOT)
-    env["PYTHONPATH"] = root + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
+    env = worker_env()
     t0 = time.perf_counter()
     log_file = stem.with_suffix(".log")
     try:

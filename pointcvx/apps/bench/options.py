@@ -48,6 +48,9 @@ class BenchOptions:
         Probes of a matched-granularity search.
     threads : int, optional
         Threads of pointcvx's worker (default: all; set when several shapes run at once).
+    oneshot : bool
+        Also time every fixed-setting run as a one-shot process, the way a user runs the method
+        on one file (:mod:`.oneshot`).
 
     ``BenchOptions.create(methods=("pointcvx",), features="model", n_points=3000)`` takes the
     decomposition and loading options by name.
@@ -63,6 +66,7 @@ class BenchOptions:
     vhacd_resolution: int | None = None
     search_runs: int = 6
     threads: int | None = None
+    oneshot: bool = True
 
     @classmethod
     def create(cls, **kwargs: Any) -> BenchOptions:
@@ -108,6 +112,10 @@ class BenchOptions:
             raise InputError(f"timeout must be positive, got {self.timeout}")
         if "pointcvx" in self.methods:
             check_model(self.decompose.features, self.decompose.model)
+            if self.oneshot:  # the one-shot run is `pointcvx decompose`: can its flags say all?
+                from .oneshot import decompose_flags
+
+                decompose_flags({**self.decompose.as_dict(), **self.load.as_dict()})
         for name in ("eval_samples", "search_runs"):
             if getattr(self, name) < 1:
                 raise InputError(f"{name} must be at least 1, got {getattr(self, name)}")

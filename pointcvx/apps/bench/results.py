@@ -18,14 +18,17 @@ from ...io.files import atomic_path
 
 COLUMNS = (
     "dataset", "category", "shape", "method", "setting", "param", "hulls", "concavity",
-    "reconstruction", "iou", "coverage", "seconds", "peak_mb", "error",
+    "reconstruction", "iou", "coverage", "seconds", "oneshot_seconds", "peak_mb", "error",
     "param_name", "threshold", "target_hulls", "search_runs", "search_seconds", "modality",
-    "hull_file",
+    "hull_file", "oneshot_error",
 )
 """Columns of ``results.csv``. ``threshold`` is the pointcvx threshold the row belongs to (empty
 for fixed-setting baselines); ``target_hulls`` the hull count a matched row aimed at;
 ``search_runs`` the parameter values tried (the reused fixed-setting run included);
-``search_seconds`` the method time of all of them; ``hull_file`` is relative to OUTDIR."""
+``search_seconds`` the method time of all of them; ``hull_file`` is relative to OUTDIR.
+``seconds`` is the warm time of the method's call; ``oneshot_seconds`` the same run as a whole
+process, start-up included (:mod:`.oneshot`; fixed-setting rows only), ``oneshot_error`` why a
+one-shot run gave no time. Files written before a column existed read it as empty."""
 METRICS = ("hulls", "concavity", "reconstruction", "iou", "coverage")
 """The columns :func:`pointcvx.evaluate.evaluate` fills."""
 

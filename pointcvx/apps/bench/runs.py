@@ -1,6 +1,6 @@
 """Every run of one shape: which rows it still needs, the worker runs that fill them (pointcvx
-first, then each baseline fixed and matched to pointcvx's hull count), their scores and hull
-files (:class:`ShapeBench`)."""
+first, then each baseline fixed and matched to pointcvx's hull count; each fixed run also as a
+one-shot process), their scores and hull files (:class:`ShapeBench`)."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ import numpy as np
 from ...errors import PointcvxError, first_line
 from ...io.files import atomic_path
 from ..common import stop_if_orphaned
-from .launch import Run, launch
+from .launch import Run, launch, worker_env
 from .mesh import prepare_mesh, write_mesh_obj
 from .methods import (
     COACD_RANGE,
@@ -26,6 +26,7 @@ from .methods import (
     vhacd_params,
     vhacdx_params,
 )
+from .oneshot import time_oneshot
 from .options import BenchOptions
 from .results import COLUMNS, METRICS, key_of, num
 from .search import search_parameter
@@ -116,6 +117,26 @@ class ShapeBench:
         }
         return launch(job, stem, self.opts.timeout, param, self.entry.shape)
 
+    def oneshot(self, method: str, params: dict, run: Run) -> dict:
+        """The one-shot columns of the fixed-setting ``run``: ``method`` with ``params`` again,
+        as a whole process the way a user runs it (:func:`~.oneshot.time_oneshot`), right after
+        the warm run so that both see the same machine; {} when the bench does not time one-shot
+        runs or the warm run failed. A one-shot run that gives another hull count than the warm
+        one (same method, settings and seed) keeps its time and says so in ``oneshot_error``."""
+        if not self.opts.oneshot or not run.ok or run.error:
+            return {}
+        assert self.tmp is not None
+        stop_if_orphaned()
+        self.count += 1
+        stem = self.tmp / f"{method}-{self.count:03d}-oneshot"
+        job = {"method": method, "input": self.input, "params": params,
+               "hulls": str(stem.with_suffix(".obj"))}
+        env = worker_env(self.opts.threads if method == "pointcvx" else None)
+        seconds, hulls, error = time_oneshot(job, stem, self.opts.timeout, env)
+        if not error and hulls != run.hulls:
+            error = f"one-shot: {hulls} hulls, the warm run {run.hulls}"
+        return {"oneshot_seconds": seconds, "oneshot_error": error}
+
     def evaluate(self, run: Run) -> None:
         """Score ``run``'s hulls (once); an evaluation failure goes to ``run.error``."""
         if not run.ok or run.metrics is not None or run.error:
@@ -176,10 +197,12 @@ class ShapeBench:
                 old = self.done[k]
                 targets[ts] = int(float(old["hulls"])) if not old.get("error") and old.get("hulls") else None
                 continue
-            run = self.launch("pointcvx", pointcvx_params(o, t), t)
+            params = pointcvx_params(o, t)
+            run = self.launch("pointcvx", params, t)
+            once = self.oneshot("pointcvx", params, run)
             self.evaluate(run)
             targets[ts] = run.hulls if run.ok and not run.error else None
-            rows.append(self._row("pointcvx", "fixed", ts, "threshold", run))
+            rows.append(self._row("pointcvx", "fixed", ts, "threshold", run, **once))
         if self.mesh is None:
             for m, s, t in pending:
                 if m != "pointcvx":
@@ -194,8 +217,9 @@ class ShapeBench:
                 continue
             param, params = fixed_params(o, b)
             run = self.launch(b, params, param)
+            once = self.oneshot(b, params, run)
             self.evaluate(run)
-            rows.append(self._row(b, "fixed", "", param_name(b), run))
+            rows.append(self._row(b, "fixed", "", param_name(b), run, **once))
             if run.ok and not run.error:
                 fixed[b] = run
         for ts, target in targets.items():

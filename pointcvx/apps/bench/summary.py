@@ -1,6 +1,6 @@
 """The summary of a benchmark's rows: ``summary.md`` (means and medians per dataset and category,
-paired win/tie/loss counts against each baseline, ratios of median times) and the lines
-``pointcvx bench`` prints at the end."""
+paired win/tie/loss counts against each baseline, ratios of median times, one-shot and warm) and
+the lines ``pointcvx bench`` prints at the end."""
 
 from __future__ import annotations
 
@@ -116,6 +116,42 @@ def _section(rows: list[dict], level: str) -> list[str]:
                 a, bm = mean_median(ours, "seconds")[1], mean_median(theirs, "seconds")[1]
                 ratio = bm / a if math.isfinite(a) and math.isfinite(bm) and a > 0 else math.nan
                 out.append(f"| {b} | {s} | {t or ref_t} | {_f(bm)} | {_f(a)} | {_f(ratio, 3)} |")
+    out += _oneshot_table(rows, level)
+    return out
+
+
+def _ratio(a: float, b: float) -> float:
+    return a / b if math.isfinite(a) and math.isfinite(b) and b > 0 else math.nan
+
+
+def _oneshot_table(rows: list[dict], level: str) -> list[str]:
+    """Median one-shot and warm seconds of every fixed setting that has one-shot runs, and each
+    over pointcvx's (at the first threshold for the baselines); [] when no row has one."""
+    timed = [r for r in rows if is_ok(r) and math.isfinite(num(r.get("oneshot_seconds")))]
+    if not timed:
+        return []
+    groups = [g for g in method_groups(timed) if g[1] == "fixed"]
+    thresholds = sorted({t for m, _, t in groups if m == "pointcvx"}, key=num)
+    ref = {}
+    for t in thresholds:
+        ours = [r for r in timed if r["method"] == "pointcvx" and r["threshold"] == t]
+        ref[t] = (mean_median(ours, "oneshot_seconds")[1], mean_median(ours, "seconds")[1])
+    out = ["", f"{level} Time: one-shot (whole process) and warm (the method's call)", "",
+           "One-shot: the method run once on one file as a fresh process, the way a user runs it "
+           "(`pointcvx decompose`; thin Python wrappers of the baselines), timed from its start "
+           "to its exit: start-up, imports, model loading, reading and writing included. Warm: the "
+           "method's call alone, in a process that has imported everything and, for pointcvx, "
+           "loaded its model and run one small decomposition first. Medians over the runs that "
+           "have both; x pointcvx: the median over pointcvx's.", "",
+           "| method | setting | threshold | runs | one-shot median s | warm median s "
+           "| one-shot x pointcvx | warm x pointcvx |",
+           "|---|---|---|---|---|---|---|---|"]
+    for m, s, t in groups:
+        g = [r for r in timed if (r["method"], r["setting"], r["threshold"]) == (m, s, t)]
+        once, warm = mean_median(g, "oneshot_seconds")[1], mean_median(g, "seconds")[1]
+        ref_once, ref_warm = ref.get(t or (thresholds[0] if thresholds else ""), (math.nan, math.nan))
+        out.append(f"| {m} | {s} | {t or '–'} | {len(g)} | {_f(once)} | {_f(warm)} "
+                   f"| {_f(_ratio(once, ref_once), 3)} | {_f(_ratio(warm, ref_warm), 3)} |")
     return out
 
 
@@ -152,9 +188,12 @@ def final_summary(report: BenchReport) -> str:
         g = [r for r in rows if (r["method"], r["setting"], r["threshold"]) == (m, s, t)]
         ok = [r for r in g if is_ok(r)]
         name = f"{m} {s} {t}".strip()
-        med = {k: mean_median(ok, k)[1] for k in ("hulls", "concavity", "reconstruction", "seconds")}
+        med = {k: mean_median(ok, k)[1]
+               for k in ("hulls", "concavity", "reconstruction", "seconds", "oneshot_seconds")}
+        once = med["oneshot_seconds"]
+        once = f"  one-shot s {_f(once, 3)}" if math.isfinite(once) else ""
         lines.append(f"  {name:<{width}}  {len(ok):>4}/{len(g):<4} ok  hulls {_f(med['hulls'], 3):>5}  "
                      f"concavity {_f(med['concavity'])}  reconstruction {_f(med['reconstruction'])}  "
-                     f"seconds {_f(med['seconds'], 3)}  (medians)")
+                     f"warm s {_f(med['seconds'], 3)}{once}  (medians)")
     lines.append(f"summary: {report.outdir / 'summary.md'}")
     return "\n".join(lines)

@@ -19,14 +19,22 @@ from pathlib import Path
 
 import numpy as np
 
-from ...cloud import OrientedCloud
+from ...cloud import MAX_COORDINATE, OrientedCloud
 from ...errors import InputError
 from ...options import LoadOptions
 from ..orient import knn, orient_normals
 from ..outliers import outlier_mask
 from .compressed import CHUNK_SIZE, decode_compressed_ply, read_compressed_ply
 from .dotsplat import decode_dot_splat, read_dot_splat, write_dot_splat
-from .filters import finite_mask, floater_mask, gaussian_weights, opacity_mask
+from .filters import (
+    MAX_SCALE_RATIO,
+    finite_mask,
+    floater_mask,
+    gaussian_weights,
+    opacity_mask,
+    range_mask,
+    scale_mask,
+)
 from .gaussians import (
     SH_C0,
     gaussian_normals,
@@ -65,9 +73,9 @@ __all__ = [
     "axes_change", "decode_compressed_ply", "decode_dot_splat", "decode_inria_ply", "decode_splat",
     "decode_spz", "finite_mask", "first_layer", "floater_mask", "gaussian_normals", "gaussian_weights",
     "load_splat_file", "matrix_quaternion", "mixture_normals", "normalize_quaternions", "opacity_mask",
-    "orient_by_visibility", "quaternion_matrices", "quaternion_product", "read_compressed_ply",
+    "orient_by_visibility", "quaternion_matrices", "quaternion_product", "range_mask", "read_compressed_ply",
     "read_dot_splat", "read_inria_ply", "read_spz", "sample_gaussians", "to_ply_axes", "view_directions",
-    "visibility_votes", "working_budget", "write_dot_splat", "write_inria_ply", "write_spz",
+    "scale_mask", "visibility_votes", "working_budget", "write_dot_splat", "write_inria_ply", "write_spz",
 ]
 
 #: Neighbours mixed with each Gaussian to find its normal (0: its own shortest axis only).
@@ -121,7 +129,10 @@ def working_budget(opts: LoadOptions) -> int | None:
 def load_splat_file(path: str | os.PathLike, fmt: str, opts: LoadOptions) -> OrientedCloud:
     """Load a splat file as an oriented cloud of Gaussian centres (or samples), in input units.
 
-    Steps, each counted in ``cloud.info``: drop non-finite Gaussians, those with opacity below
+    Steps, each counted in ``cloud.info``: drop non-finite Gaussians, those centred beyond
+    :data:`~pointcvx.cloud.MAX_COORDINATE` (``dropped_out_of_range``), those larger than the
+    whole splat (:func:`scale_mask`, ``dropped_huge_scales``, with a warning: a log-scale of 80
+    is a trained splat's corruption, not a surface), those with opacity below
     ``opts.min_opacity``; keep a uniform subset of at most :func:`working_budget` of the rest
     (``gaussians_used``); drop floater clusters holding less than ``opts.floater_ratio`` of the rest
     (:func:`floater_mask`) and statistical outliers (``opts.outlier_neighbors``,
@@ -149,13 +160,22 @@ def load_splat_file(path: str | os.PathLike, fmt: str, opts: LoadOptions) -> Ori
     ok = finite_mask(g)
     info["dropped_nonfinite"] = int((~ok).sum())
     g = _subset(g, ok)
+    ok = range_mask(g)
+    if not ok.all():
+        info["dropped_out_of_range"] = int((~ok).sum())
+        g = _subset(g, ok)
+    ok = scale_mask(g)
+    if not ok.all():
+        info["dropped_huge_scales"] = int((~ok).sum())  # warned about once the load succeeds
+        g = _subset(g, ok)
     ok = opacity_mask(g, opts.min_opacity)
     info["dropped_low_opacity"] = int((~ok).sum())
     g = _subset(g, ok)
     if len(g["centers"]) == 0:
         raise InputError(
-            f"{p}: no Gaussian is left after filtering: all {total} are non-finite or have "
-            f"opacity below min_opacity={opts.min_opacity}"
+            f"{p}: no Gaussian is left after filtering: all {total} are non-finite, beyond "
+            f"{MAX_COORDINATE:g}, larger than the splat, or have opacity below "
+            f"min_opacity={opts.min_opacity}"
         )
     budget = working_budget(opts)
     if budget is not None and len(g["centers"]) > budget:
@@ -198,5 +218,10 @@ def load_splat_file(path: str | os.PathLike, fmt: str, opts: LoadOptions) -> Ori
         keep = np.sort(order[first])
         info["dropped_voxel"] = int(len(points) - len(keep))
         points, normals, colors, weights = points[keep], normals[keep], colors[keep], weights[keep]
+    for warning in meta.get("warnings", ()):
+        log.warning("%s: %s", p, warning)
+    if info.get("dropped_huge_scales"):
+        log.warning("%s: dropped %d Gaussians larger than the whole splat (scale above %g x the "
+                    "diagonal of its centres)", p, info["dropped_huge_scales"], MAX_SCALE_RATIO)
     log.debug("%s: %d Gaussians -> %d points (%s)", p, total, len(points), info)
     return OrientedCloud(points, normals, colors=colors, weights=weights, modality="splat", info=info)

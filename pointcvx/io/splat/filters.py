@@ -6,7 +6,12 @@ import numpy as np
 from scipy import sparse
 from scipy.sparse import csgraph
 
+from ...cloud import MAX_COORDINATE
 from ..orient import knn
+
+#: Largest Gaussian accepted, as a multiple of the diagonal of the centres' bounding box: a
+#: Gaussian larger than the whole splat models no surface (a log-scale of 80 is e^80 units).
+MAX_SCALE_RATIO = 1.0
 
 
 def finite_mask(g: dict[str, np.ndarray]) -> np.ndarray:
@@ -16,6 +21,23 @@ def finite_mask(g: dict[str, np.ndarray]) -> np.ndarray:
     ok &= np.isfinite(g["rotations"]).all(axis=1)
     ok &= np.isfinite(g["opacity"])
     return ok
+
+
+def range_mask(g: dict[str, np.ndarray]) -> np.ndarray:
+    """(n,) bool: Gaussians (finite ones) whose centre lies within :data:`MAX_COORDINATE`."""
+    return np.abs(g["centers"]).max(axis=1, initial=0.0) <= MAX_COORDINATE
+
+
+def scale_mask(g: dict[str, np.ndarray], ratio: float = MAX_SCALE_RATIO) -> np.ndarray:
+    """(n,) bool: Gaussians (finite ones) no larger than ``ratio`` x the diagonal of the bounding
+    box of all centres; all kept when the centres have no extent."""
+    c = g["centers"]
+    if len(c) == 0:
+        return np.ones(0, dtype=bool)
+    diagonal = float(np.linalg.norm(c.max(axis=0) - c.min(axis=0)))
+    if not diagonal > 0:
+        return np.ones(len(c), dtype=bool)
+    return g["scales"].max(axis=1) <= ratio * diagonal
 
 
 def opacity_mask(g: dict[str, np.ndarray], min_opacity: float) -> np.ndarray:

@@ -8,6 +8,7 @@ from __future__ import annotations
 import ctypes
 import ctypes.util
 import gzip
+import io
 import logging
 import os
 import struct
@@ -26,6 +27,13 @@ log = logging.getLogger(__name__)
 SPZ_COLOR_SCALE = 0.15
 #: Largest SPZ point count accepted before allocating anything.
 MAX_SPZ_POINTS = 100_000_000
+
+#: Bytes inflated at a time: memory follows what a compressed stream really holds.
+INFLATE_STEP = 64 << 20
+#: Most bytes deflate can expand one byte to: the bound on what a gzip stream can hold.
+DEFLATE_MAX_RATIO = 1032
+#: Bytes allowed past a legacy payload's arrays: extension records (flag 0x2), or stray bytes.
+EXTENSION_SLACK, TRAILING_SLACK = 1 << 20, 1 << 16
 
 #: The first four bytes of a zstd frame.
 _ZSTD_MAGIC = b"\x28\xb5\x2f\xfd"
@@ -216,6 +224,7 @@ def _parse_legacy_spz(p: Path, buf: bytes) -> tuple[dict[str, np.ndarray], dict]
     if n > MAX_SPZ_POINTS or degree > 4:
         raise InputError(f"{p}: corrupted SPZ header ({n} points, SH degree {degree})")
     sizes = _spz_sizes(n, degree, version)
+    warnings: list[str] = []
     start = len(buf) - sum(sizes)  # extension records, if any, sit between header and data
     if start < 16 or (start > 16 and not flags & 0x2):
         if start < 16:
@@ -223,7 +232,7 @@ def _parse_legacy_spz(p: Path, buf: bytes) -> tuple[dict[str, np.ndarray], dict]
                 f"{p}: truncated SPZ: {len(buf)} bytes hold less than the {16 + sum(sizes)} "
                 f"bytes {n} Gaussians need"
             )
-        log.warning("%s: %d unexpected bytes after the SPZ header ignored", p, start - 16)
+        warnings.append(f"{start - 16} unexpected bytes after the SPZ header ignored")
     arrays, offset = [], start
     for size in sizes[:5]:
         arrays.append(np.frombuffer(buf, dtype=np.uint8, count=size, offset=offset))
@@ -231,10 +240,10 @@ def _parse_legacy_spz(p: Path, buf: bytes) -> tuple[dict[str, np.ndarray], dict]
     g = _spz_arrays(p, n, frac, version >= 3, version == 1, arrays)
     to_ply_axes(g, "RUB")
     detail = f"Niantic SPZ v{version} (gzip, {n} Gaussians, SH degree {degree}, RUB -> RDF axes)"
-    return g, {"format_detail": detail, "sh_degree": int(degree)}
+    return g, {"format_detail": detail, "sh_degree": int(degree), "warnings": warnings}
 
 
-def _spz_coordinate_extension(p: Path, raw: bytes, start: int, end: int) -> str:
+def _spz_coordinate_extension(p: Path, raw: bytes, start: int, end: int, warnings: list[str]) -> str:
     """The axes declared by an SPZ v4 coordinate-system extension record, or ``RUB``.
 
     v4 extension records are ``uint32 type, uint32 byte length, payload``; the coordinate system
@@ -249,7 +258,7 @@ def _spz_coordinate_extension(p: Path, raw: bytes, start: int, end: int) -> str:
             (value,) = struct.unpack_from("<I", raw, offset + 8)
             if value in _SPZ_COORDINATES:
                 return _SPZ_COORDINATES[value]
-            log.warning("%s: unknown SPZ coordinate system %d; assuming RUB", p, value)
+            warnings.append(f"unknown SPZ coordinate system {value}; assuming RUB")
         offset += 8 + length
     return "RUB"
 
@@ -283,52 +292,132 @@ def _parse_ngsp_v4(p: Path, raw: bytes) -> tuple[dict[str, np.ndarray], dict]:
             f"{p}: truncated SPZ: the streams need {offset + int(table[:, 0].sum())} bytes, "
             f"the file has {len(raw)}"
         )
-    decompress = _zstd_decompressor()
+    _zstd_decompressor()  # MissingExtraError before anything is read when no decoder exists
     arrays = []
     for i, (csize, usize) in enumerate(table[:5].tolist()):
         chunk = raw[offset:offset + csize]
         offset += csize
         try:
-            out = decompress(chunk, usize)
+            out, more = _unzstd(p, chunk, usize)
         except ValueError as exc:
             raise InputError(f"{p}: corrupted SPZ: zstd stream {i} does not decode ({exc})") from None
+        if more:
+            raise InputError(f"{p}: corrupted SPZ: zstd stream {i} inflates past the {usize} bytes it "
+                             "declares")
         if len(out) != usize:
             raise InputError(f"{p}: corrupted SPZ: zstd stream {i} gives {len(out)} bytes, not {usize}")
         arrays.append(np.frombuffer(out, dtype=np.uint8))
     g = _spz_arrays(p, n, frac, True, False, arrays)
-    axes = _spz_coordinate_extension(p, raw, 32, toc) if flags & 0x2 else "RUB"
+    warnings: list[str] = []
+    axes = _spz_coordinate_extension(p, raw, 32, toc, warnings) if flags & 0x2 else "RUB"
     to_ply_axes(g, axes)
     detail = (f"Niantic SPZ v{version} (zstd, {n_streams} streams, {n} Gaussians, "
               f"SH degree {degree}, {axes} -> RDF axes)")
-    return g, {"format_detail": detail, "sh_degree": int(degree)}
+    return g, {"format_detail": detail, "sh_degree": int(degree), "warnings": warnings}
+
+
+def _gunzip(p: Path, raw: bytes, limit: int) -> tuple[bytearray, bool]:
+    """At most ``limit`` bytes of the gzip stream ``raw``, inflated step by step (memory follows the
+    output), and whether the stream holds more."""
+    d = zlib.decompressobj(wbits=31)
+    out, data, more = bytearray(), raw, False
+    try:
+        while len(out) < limit and not d.eof:
+            piece = d.decompress(data, min(INFLATE_STEP, limit - len(out)))
+            data = d.unconsumed_tail
+            if not piece and not data:
+                piece = d.decompress(b"", min(INFLATE_STEP, limit - len(out)))  # output still pending
+                if not piece:
+                    break
+            out += piece
+        if not d.eof and len(out) >= limit:
+            more = bool(d.decompress(data, 1))
+    except zlib.error as exc:
+        raise InputError(f"{p}: truncated or corrupted SPZ gzip stream ({exc})") from None
+    if not d.eof and not more:
+        raise InputError(f"{p}: truncated or corrupted SPZ gzip stream (it ends before its end marker)")
+    return out, more
+
+
+def _unzstd(p: Path, raw: bytes, limit: int) -> tuple[bytes | bytearray, bool]:
+    """At most ``limit`` bytes of the zstd data ``raw`` and whether it holds more; :class:`ValueError`
+    when it does not decode. Streamed with ``zstandard`` (a dependency); other decoders get
+    ``limit`` as their output bound."""
+    try:
+        import zstandard
+    except ImportError:
+        return _zstd_decompressor()(raw, limit), False
+    reader = zstandard.ZstdDecompressor().stream_reader(io.BytesIO(raw), read_across_frames=True)
+    out = bytearray()
+    try:
+        while len(out) < limit:
+            chunk = reader.read(min(INFLATE_STEP, limit - len(out)))
+            if not chunk:
+                break
+            out += chunk
+        more = bool(reader.read(1))
+    except zstandard.ZstdError as exc:
+        raise ValueError(str(exc)) from None
+    return out, more
+
+
+def _legacy_need(head: bytes) -> tuple[int, int, int]:
+    """(bytes the Gaussians declared by a legacy 16-byte header need, slack allowed past them, the
+    count); a header too broken to size gives 16 (:func:`_parse_legacy_spz` then says why)."""
+    if len(head) < 16:
+        return 16, 0, 0
+    magic, version, n, degree, _, flags, _ = struct.unpack_from("<4sIIBBBB", head, 0)
+    if magic != b"NGSP" or not 1 <= version <= 3 or n > MAX_SPZ_POINTS or degree > 4:
+        return 16, 0, n
+    return 16 + sum(_spz_sizes(n, degree, version)), EXTENSION_SLACK if flags & 0x2 else TRAILING_SLACK, n
+
+
+def _inflate_legacy(p: Path, raw: bytes, kind: str) -> bytes | bytearray:
+    """A legacy SPZ payload wrapped in gzip or zstd, inflated no further than its header's count needs
+    (plus extension slack): a bomb is refused after the bytes it declares, never fully inflated."""
+    unpack = _gunzip if kind == "gzip" else _unzstd
+
+    def inflate(limit: int) -> tuple[bytes | bytearray, bool]:
+        return unpack(p, raw, limit)
+
+    try:
+        head, _ = inflate(16)
+        need, slack, n = _legacy_need(bytes(head))
+        if kind == "gzip" and need > DEFLATE_MAX_RATIO * len(raw) + 1024:
+            raise InputError(f"{p}: truncated or corrupted SPZ: its header declares {n} Gaussians "
+                             f"({need} bytes), more than {len(raw)} bytes of gzip can hold")
+        buf, more = inflate(need + slack)
+    except ValueError as exc:
+        if isinstance(exc, InputError):
+            raise
+        raise InputError(f"{p}: truncated or corrupted SPZ {kind} stream ({exc})") from None
+    if more:
+        raise InputError(f"{p}: corrupted SPZ: its {kind} stream inflates past the {need + slack} bytes its "
+                         f"{n} Gaussians need (a decompression bomb?); refused")
+    return buf
 
 
 def decode_spz(path: str | os.PathLike) -> tuple[dict[str, np.ndarray], dict]:
-    """Decode a Niantic SPZ file: the decoder dict and ``{"format_detail": str, "sh_degree": int}``
-    (what :func:`pointcvx.io.splat.decode_splat` returns); see :func:`read_spz`."""
+    """Decode a Niantic SPZ file: the decoder dict and ``{"format_detail": str, "sh_degree": int,
+    "warnings": [str]}`` (what :func:`pointcvx.io.splat.decode_splat` returns; the warnings are
+    logged by whoever finishes the load, so a failing load prints its error alone); see
+    :func:`read_spz`."""
     p = check_readable(path)
     raw = p.read_bytes()
     if raw[:2] == b"\x1f\x8b":
-        try:
-            buf = gzip.decompress(raw)
-        except (OSError, EOFError, zlib.error) as exc:
-            raise InputError(f"{p}: truncated or corrupted SPZ gzip stream ({exc})") from None
-        return _parse_legacy_spz(p, buf)
+        return _parse_legacy_spz(p, _inflate_legacy(p, raw, "gzip"))
     if raw[:4] == _ZSTD_MAGIC:  # a legacy payload wrapped in one zstd frame (third-party writers)
-        try:
-            buf = _zstd_decompressor()(raw, 64 * len(raw) + (1 << 20))
-        except ValueError as exc:
-            raise InputError(f"{p}: truncated or corrupted SPZ zstd stream ({exc})") from None
-        return _parse_legacy_spz(p, buf)
+        return _parse_legacy_spz(p, _inflate_legacy(p, raw, "zstd"))
     if raw[:4] != b"NGSP":
         raise InputError(f"{p}: not an SPZ file (no gzip, zstd or 'NGSP' magic)")
     if len(raw) < 8:
         raise InputError(f"{p}: truncated SPZ header")
     (version,) = struct.unpack_from("<I", raw, 4)
     if version >= 4:
+        g, meta = _parse_ngsp_v4(p, raw)
         if version > 4:
-            log.warning("%s: SPZ version %d is newer than 4; decoding it as version 4", p, version)
-        return _parse_ngsp_v4(p, raw)
+            meta["warnings"].insert(0, f"SPZ version {version} is newer than 4; decoded as version 4")
+        return g, meta
     return _parse_legacy_spz(p, raw)  # an uncompressed legacy payload
 
 
@@ -342,7 +431,10 @@ def read_spz(path: str | os.PathLike) -> dict[str, np.ndarray]:
     writing PLY, unless a v4 coordinate-system extension says otherwise. Version 4 needs a zstd
     decoder (see :func:`_zstd_decompressor`).
     """
-    return decode_spz(path)[0]
+    g, meta = decode_spz(path)
+    for warning in meta["warnings"]:
+        log.warning("%s: %s", path, warning)
+    return g
 
 
 def write_spz(path, centers, scales, rotations, opacity, colors, version: int = 3,

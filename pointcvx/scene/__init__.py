@@ -1,0 +1,50 @@
+"""Captures as scenes: support planes (:mod:`.planes`), connected pieces (:mod:`.components`),
+and the object freed from its surroundings (:mod:`.isolate`); :func:`isolate_cloud` applies it to
+a loaded cloud."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..cloud import OrientedCloud
+from .components import components
+from .isolate import Isolation, isolate, support_plane
+from .planes import Plane, find_planes, fit_plane, ransac_plane
+
+__all__ = ["Isolation", "Plane", "components", "find_planes", "fit_plane", "isolate", "isolate_cloud",
+           "ransac_plane", "support_plane"]
+
+#: Modalities that ``isolate="auto"`` frees from their surroundings.
+ISOLATED_MODALITIES = ("splat", "scan")
+#: The image's up direction in an organised depth frame's sensor coordinates (rows go down).
+FRAME_UP = np.array([0.0, -1.0, 0.0])
+
+
+def resolve_mode(mode: str, modality: str) -> str:
+    """What ``isolate=mode`` means for a cloud of ``modality``: "auto" is "all" on splats and
+    scans, "none" on meshes, CAD parts and in-memory points."""
+    if mode != "auto":
+        return mode
+    return "all" if modality in ISOLATED_MODALITIES else "none"
+
+
+def isolate_cloud(cloud: OrientedCloud, mode: str = "auto", crop=None, seed: int = 0) -> OrientedCloud:
+    """``cloud`` (in its current coordinates) with its surroundings removed (:func:`isolate`):
+    the kept points, ``cloud.removed`` holding the others, ``cloud.info["isolation"]`` saying
+    what was removed and why, and ``cloud.info["up"]`` the support plane's normal when found."""
+    mode = resolve_mode(mode, cloud.modality)
+    if mode == "none" and crop is None:
+        return cloud
+    up = FRAME_UP if cloud.info.get("organized") else None
+    found = isolate(cloud.points, mode, crop=None if crop is None else np.reshape(crop, (2, 3)),
+                    up=up, seed=seed)
+    if found.keep.all():
+        out = cloud.replace()
+    else:
+        out = cloud.subset(found.keep)
+        gone = cloud.points[~found.keep]
+        out.removed = gone if cloud.removed is None else np.concatenate([cloud.removed, gone])
+    out.info["isolation"] = {"mode": mode, **found.report()}
+    if found.up is not None:
+        out.info["up"] = np.round(found.up, 6).tolist()
+    return out

@@ -1,0 +1,210 @@
+"""Objects freed from their surroundings: the support plane (floor, table, the ground disc under a
+captured object) found and removed, small clutter pieces and floaters dropped, an optional box.
+
+:func:`isolate` works on plain (n, 3) points and says what it removed; the loaders apply it to
+splats and scans by default (:func:`pointcvx.io.load`, option ``isolate``), where a capture
+usually holds more than the object.
+
+A plane is the **support** when:
+
+- the other points lie on one side of it (at least :data:`ONE_SIDED` of them), so it is under
+  the object, not through it;
+- it holds at most :data:`MAX_SUPPORT_SHARE` of the points (a flat scan is its own plane);
+- its outline covers at least :data:`UNDER` of the area of the rest's shadow on it (what
+  stands on it is not much wider than it);
+- and it is not a face of the object: its outline covers at least :data:`WIDER` times the area
+  of the rest's shadow on it (a ground disc around a box), or it joins pieces of similar size
+  that are apart without it (a floor under several objects), or it is a layer of its own, with few
+  points just above it (at most :data:`SEPARATE` of its own count within four tolerances: the
+  ground under vegetation). The flat bottom of an object (a donut's base) is none of these:
+  the object's sides rise right from it, and it stays.
+
+In an organised depth frame the image's up direction (``-y`` of the sensor frame) is known, and
+the support is the largest plane facing it (within :data:`FRAME_UP_COS`), objects above it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .components import components
+from .planes import Plane, find_planes
+
+ONE_SIDED = 0.95
+MAX_SUPPORT_SHARE = 0.97
+WIDER = 1.5
+#: Any support covers at least this share of the area of the rest's shadow on it.
+UNDER = 0.5
+SEPARATE = 0.15
+#: Points below the support plane or within this many plane tolerances above it go with it.
+SUPPORT_BAND = 1.0
+FRAME_UP_COS = 0.5
+#: A piece smaller than this share of the largest piece is clutter (or a floater).
+CLUTTER_SHARE = 0.05
+#: Plane tolerance: this many median point spacings, and at least this share of the extent.
+PLANE_SPACINGS, PLANE_EXTENT = 2.0, 0.005
+
+
+@dataclass
+class Isolation:
+    """What :func:`isolate` kept and removed.
+
+    Attributes
+    ----------
+    keep : (n,) bool, the points of the object(s).
+    support : Plane or None, oriented with the objects on its positive side.
+    removed : dict of str -> int, points removed per reason ("crop", "support", "clutter").
+    pieces : int, separate pieces kept.
+    up : (3,) float or None, the support's normal (the up axis it implies).
+    """
+
+    keep: np.ndarray
+    support: Plane | None = None
+    removed: dict = field(default_factory=dict)
+    pieces: int = 1
+    up: np.ndarray | None = None
+
+    def report(self) -> dict:
+        """JSON-able summary for ``cloud.info``."""
+        out = {"kept": int(self.keep.sum()), "removed": dict(self.removed), "pieces": int(self.pieces)}
+        if self.support is not None:
+            out["support_plane"] = self.support.as_dict()
+        if self.up is not None:
+            out["up"] = np.round(self.up, 6).tolist()
+        return out
+
+
+def spacing(points: np.ndarray, sample: int = 20000) -> float:
+    """Median nearest-neighbour distance of (n, 3) ``points`` (on a seeded subsample)."""
+    from scipy.spatial import cKDTree
+
+    pts = np.asarray(points, dtype=np.float64)
+    if len(pts) < 2:
+        return 0.0
+    sub = pts[np.random.default_rng(0).permutation(len(pts))[:sample]] if len(pts) > sample else pts
+    return float(np.median(cKDTree(sub).query(sub, k=2)[0][:, 1]))
+
+
+def _plane_basis(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    helper = np.eye(3)[int(np.argmin(np.abs(normal)))]
+    u = np.cross(normal, helper)
+    u /= np.linalg.norm(u)
+    return u, np.cross(normal, u)
+
+
+def _outline_area(points: np.ndarray, normal: np.ndarray, limit: int = 20000) -> float:
+    """Area of the 2D convex hull of (n, 3) ``points`` projected on the plane of ``normal``."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    if len(points) < 3:
+        return 0.0
+    pts = points[:: max(1, len(points) // limit)]
+    u, v = _plane_basis(normal)
+    try:
+        return float(ConvexHull(np.stack([pts @ u, pts @ v], axis=1)).volume)
+    except QhullError:
+        return 0.0
+
+
+def _pieces(points: np.ndarray) -> int:
+    """How many pieces of (n, 3) ``points`` hold at least a fifth of the largest one's points."""
+    if len(points) < 8:
+        return 1
+    sizes = np.bincount(components(points))
+    return int((sizes >= 0.2 * sizes[0]).sum())
+
+
+def _joins_pieces(points: np.ndarray, plane: Plane) -> bool:
+    """Whether ``plane``'s inliers join pieces of (n, 3) ``points`` that are apart without them
+    (a floor under several objects)."""
+    return _pieces(points[~plane.inliers]) > _pieces(points)
+
+
+def support_plane(points: np.ndarray, *, up: np.ndarray | None = None, seed: int = 0) -> Plane | None:
+    """The plane the object(s) of (n, 3) ``points`` stand on, oriented with them on its positive
+    side, or None (see the module docstring). ``up``: a known up direction (depth frames)."""
+    pts = np.asarray(points, dtype=np.float64)
+    if len(pts) < 50:
+        return None
+    extent = float(np.ptp(pts, axis=0).max())
+    tol = max(PLANE_SPACINGS * spacing(pts), PLANE_EXTENT * extent)
+    for plane in find_planes(pts, tol, seed=seed):
+        rest = ~plane.inliers
+        share = plane.inliers.mean()
+        if share > MAX_SUPPORT_SHARE or rest.sum() < 20:
+            continue
+        d = plane.distance(pts[rest])
+        if (d > 0).mean() < 0.5:
+            plane, d = plane.flipped(), -d
+        if up is not None:
+            if plane.normal @ up < FRAME_UP_COS:
+                continue
+            return plane if (d > -tol).mean() >= ONE_SIDED - 0.05 else None
+        if (d > -tol).mean() < ONE_SIDED:
+            continue
+        width = _outline_area(pts[plane.inliers], plane.normal) / max(
+            _outline_area(pts[rest], plane.normal), 1e-300)
+        if width < UNDER:  # too small to carry what stands on it (a flat bit of the object)
+            continue
+        if width >= WIDER or _joins_pieces(pts, plane):
+            return plane
+        if ((d > tol) & (d <= 4 * tol)).sum() <= SEPARATE * plane.inliers.sum():
+            return plane
+    return None
+
+
+def isolate(points: np.ndarray, mode: str = "all", *, crop: np.ndarray | None = None,
+            up: np.ndarray | None = None, seed: int = 0) -> Isolation:
+    """Which of (n, 3) ``points`` are the object(s).
+
+    Parameters
+    ----------
+    points : (n, 3) float
+    mode : {"all", "largest", "none"}
+        "all": remove the support plane and the clutter pieces, keep every piece of at least
+        :data:`CLUTTER_SHARE` of the largest; "largest": keep the largest piece only; "none":
+        keep everything (but ``crop``).
+    crop : (2, 3) float, optional
+        Keep only the points inside this box (its min and max corners), first.
+    up : (3,) float, optional
+        A known up direction (an organised depth frame's image up).
+    seed : int
+    """
+    pts = np.asarray(points, dtype=np.float64)
+    keep = np.ones(len(pts), dtype=bool)
+    result = Isolation(keep)
+    if crop is not None:
+        lo, hi = np.asarray(crop, dtype=np.float64).reshape(2, 3)
+        inside = np.all((pts >= lo) & (pts <= hi), axis=1)
+        result.removed["crop"] = int((~inside).sum())
+        keep &= inside
+    if mode == "none" or keep.sum() < 50:
+        return result
+    idx = np.flatnonzero(keep)
+    plane = support_plane(pts[idx], up=up, seed=seed)
+    if plane is not None:
+        # the plane's band (depth noise spreads it) and whatever lies under it
+        on = plane.inliers | (plane.distance(pts[idx]) < SUPPORT_BAND * plane.tolerance)
+        full = np.zeros(len(pts), dtype=bool)
+        full[idx] = plane.inliers
+        result.support = Plane(plane.normal, plane.offset, full, plane.tolerance)
+        result.up = plane.normal.copy()
+        result.removed["support"] = int(on.sum())
+        keep[idx[on]] = False
+        idx = idx[~on]
+    if len(idx) == 0:
+        return result
+    labels = components(pts[idx])
+    sizes = np.bincount(labels)
+    wanted = np.zeros(len(sizes), dtype=bool)
+    if mode == "largest":
+        wanted[0] = True
+    else:
+        wanted = sizes >= CLUTTER_SHARE * sizes[0]
+    drop = ~wanted[labels]
+    result.removed["clutter"] = int(drop.sum())
+    result.pieces = int(wanted.sum())
+    keep[idx[drop]] = False
+    return result

@@ -1,0 +1,184 @@
+"""The fast per-shape feature source (``features="fast"``, pointcvx.features.fast): its hand-written
+backward pass, its triplets, its fit, decompositions with it, and that it never imports torch."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from shapes import l_block, u_block
+
+import pointcvx
+from conftest import DATA, ROOT
+from pointcvx.evaluate import evaluate
+from pointcvx.features.fast import (
+    FAST_STEPS,
+    FastField,
+    _draw_columns,
+    fit_fast_field,
+    info_nce_grad,
+    sample_fast_triplets,
+)
+from pointcvx.features.pairs import nonconvex_mask
+from pointcvx.io.mesh import cloud_from_mesh
+from pointcvx.solid import Solid
+
+CHAIR = DATA / "vhacd61" / "chair.off"
+TABLE = DATA / "vhacd61" / "table.off"
+
+
+@pytest.fixture(scope="module")
+def lshape():
+    cloud = cloud_from_mesh(l_block(), n_points=6000, seed=0).normalized()
+    return cloud, Solid.from_trimesh(cloud.mesh)
+
+
+def _small_problem(dtype=np.float32):
+    """A field, 60 points and index triplets into them (8 anchors, 8 positives, 5 negatives each)."""
+    rng = np.random.default_rng(0)
+    field = FastField.initial(rng)
+    field.params = [tuple(p.astype(dtype) for p in layer) for layer in field.params]
+    x = rng.uniform(-1, 1, (60, 3)).astype(np.float32)
+    anchor, positive, negative = rng.integers(0, 40, 8), np.arange(40, 48), rng.integers(0, 40, (8, 5))
+    return field, x, anchor, positive, negative
+
+
+def _loss_and_grads(field, x, anchor, positive, negative):
+    feats, acts, norm = field._forward(x)
+    loss, g_a, g_p, g_n = info_nce_grad(feats[anchor], feats[positive], feats[negative], 0.3)
+    grad = np.zeros_like(feats)
+    np.add.at(grad, anchor, g_a)
+    np.add.at(grad, positive, g_p)
+    np.add.at(grad, negative.ravel(), g_n.reshape(-1, field.dim))
+    return loss, field._backward(grad, feats, acts, norm)
+
+
+def test_backward_pass_matches_finite_differences():
+    """Central differences (float64) of the loss w.r.t. sampled weights and biases of every layer
+    equal the hand-written gradients."""
+    field, x, anchor, positive, negative = _small_problem(np.float64)
+    _, grads = _loss_and_grads(field, x, anchor, positive, negative)
+    rng, eps = np.random.default_rng(1), 1e-6
+    for i, layer in enumerate(field.params):
+        for j, p in enumerate(layer):
+            for flat in rng.choice(p.size, 6, replace=False):
+                idx = np.unravel_index(flat, p.shape)
+                old = p[idx]
+                p[idx] = old + eps
+                up = _loss_and_grads(field, x, anchor, positive, negative)[0]
+                p[idx] = old - eps
+                down = _loss_and_grads(field, x, anchor, positive, negative)[0]
+                p[idx] = old
+                numeric = (up - down) / (2 * eps)
+                assert grads[i][j][idx] == pytest.approx(numeric, rel=1e-4, abs=1e-8), (i, j, idx)
+
+
+def test_loss_and_gradients_match_torch():
+    """The loss is pointcvx.features.loss.info_nce, and the backward pass equals torch's autograd
+    on the same weights."""
+    torch = pytest.importorskip("torch")
+    from pointcvx.features.loss import info_nce
+
+    field, x, anchor, positive, negative = _small_problem()
+    loss, grads = _loss_and_grads(field, x, anchor, positive, negative)
+    params = [[torch.tensor(p, requires_grad=True) for p in layer] for layer in field.params]
+    h = torch.tensor(field._encode(x))
+    for i, (w, b) in enumerate(params):
+        h = h @ w + b
+        h = torch.relu(h) if i < len(params) - 1 else h
+    f = torch.nn.functional.normalize(h, dim=-1)
+    expected = info_nce(f[anchor], f[positive], f[negative], tau=0.3)
+    expected.backward()
+    assert loss == pytest.approx(float(expected.detach()), rel=1e-5)
+    for (gw, gb), (w, b) in zip(grads, params, strict=True):
+        np.testing.assert_allclose(gw, w.grad.numpy(), rtol=1e-4, atol=1e-6)
+        np.testing.assert_allclose(gb, b.grad.numpy(), rtol=1e-4, atol=1e-6)
+
+
+def test_weighted_draws_follow_the_weights():
+    rng = np.random.default_rng(0)
+    w = np.array([[0.0, 1.0, 0.0, 3.0], [2.0, 0.0, 0.0, 0.0]])
+    cols = _draw_columns(rng, w, 20000)
+    assert set(np.unique(cols[0])) == {1, 3} and (cols[1] == 0).all()
+    assert (cols[0] == 3).mean() == pytest.approx(0.75, abs=0.02)
+
+
+def test_triplets_are_real_and_seeded(lshape):
+    cloud, solid = lshape
+    kw = dict(pool_size=4000, n_anchors=256, n_candidates=128, n_hard=32, n_uniform=32, seed=3)
+    a = sample_fast_triplets(solid, cloud.points, cloud.normals, **kw)
+    b = sample_fast_triplets(solid, cloud.points, cloud.normals, **kw)
+    np.testing.assert_array_equal(a.negative, b.negative)
+    np.testing.assert_array_equal(a.positive, b.positive)
+    assert a.negative.shape == (len(a), 64) and 0 < len(a) <= 256 and len(a.pool) == 4000
+    normals = cloud.normals[np.sort(np.random.default_rng(3).choice(len(cloud.points), 4000, replace=False))]
+    rows = np.repeat(np.arange(len(a)), 8)
+    cols = a.negative[:, ::8].ravel()
+    mask = nonconvex_mask(solid, a.pool[a.anchor[rows]], normals[a.anchor[rows]], a.pool[cols][:, None])
+    assert mask.all()  # every negative is a non-convex pair
+    # Hard negatives (1/d^2 weights) lie nearer the positive than uniform ones, as with
+    # sample_triplets (whose draws these vectorise).
+    hard = sample_fast_triplets(solid, cloud.points, cloud.normals, power=2.0, **kw)
+    d = np.linalg.norm(hard.pool[hard.negative] - hard.positive[:, None], axis=2)
+    assert d[:, 32:].mean() < 0.95 * d[:, :32].mean()
+
+
+def test_fit_lowers_the_loss_separates_the_l_and_is_deterministic(lshape):
+    cloud, solid = lshape
+    t = sample_fast_triplets(solid, cloud.points, cloud.normals, n_anchors=1024, seed=0)
+    f1, f2 = fit_fast_field(t, seed=5), fit_fast_field(t, seed=5)
+    assert len(f1.losses) == FAST_STEPS and np.mean(f1.losses[-10:]) < 0.7 * np.mean(f1.losses[:10])
+    assert f1.losses == f2.losses
+    feats = f1.features(cloud.points)
+    np.testing.assert_array_equal(feats, f2.features(cloud.points))
+    assert feats.shape == (len(cloud.points), 32) and feats.dtype == np.float32
+    np.testing.assert_allclose(np.linalg.norm(feats, axis=1), 1.0, atol=1e-5)
+    back = cloud.normalization.inverse(cloud.points)
+    bar = np.flatnonzero((back[:, 0] > 1.6) & (back[:, 2] < 1.0))[:200]
+    cube = np.flatnonzero(back[:, 2] > 1.4)[:200]
+    within = (feats[bar] @ feats[bar].T).mean() + (feats[cube] @ feats[cube].T).mean()
+    assert 2 * (feats[bar] @ feats[cube].T).mean() < within - 0.1
+
+
+def test_decompose_fast_known_answer_and_same_seed_same_hulls():
+    a = pointcvx.decompose(u_block(), features="fast", threshold=0.1, n_points=6000, seed=0)
+    b = pointcvx.decompose(u_block(), features="fast", threshold=0.1, n_points=6000, seed=0)
+    assert len(a) == 3 and a.params["features"] == "fast"
+    np.testing.assert_array_equal(a.labels, b.labels)
+    for ha, hb in zip(a.hulls, b.hulls, strict=True):
+        np.testing.assert_array_equal(ha.vertices, hb.vertices)
+
+
+def test_fast_decomposes_a_real_chair_into_sensible_hulls():
+    """vhacd61's chair: a handful of hulls under the threshold that cover the chair, with the
+    feature progress reported from step 0 (before the convex pairs) to the last step."""
+    import trimesh
+
+    calls = []
+    r = pointcvx.decompose(CHAIR, features="fast", n_points=6000, seed=0,
+                           progress=lambda stage, done, total: calls.append((stage, done, total)))
+    assert r.params["features"] == "fast"
+    assert 3 <= len(r) <= 24 and r.max_concavity <= 0.1, r.summary()
+    steps = [(done, total) for stage, done, total in calls if stage == "features"]
+    assert steps[0] == (0, FAST_STEPS) and steps[-1] == (FAST_STEPS, FAST_STEPS)
+    assert [d for d, _ in steps] == list(range(FAST_STEPS + 1))
+    ev = evaluate(trimesh.load(CHAIR, force="mesh"), [h.vertices for h in r.hulls], n_samples=4000)
+    assert ev["coverage"] > 0.97 and ev["concavity"] <= 0.12, ev
+
+
+def test_cli_fast_never_imports_torch(tmp_path):
+    """``python -m pointcvx decompose SHAPE --features fast`` writes its hulls without importing
+    torch (``-X importtime`` lists every module the process imports)."""
+    out = tmp_path / "table.obj"
+    cmd = [sys.executable, "-X", "importtime", "-m", "pointcvx", "decompose", str(TABLE),
+           "--features", "fast", "-o", str(out), "-q", "-n", "3000"]
+    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    imported = {line.rsplit("|", 1)[-1].strip() for line in proc.stderr.splitlines()
+                if line.startswith("import time:")}
+    assert "pointcvx.features.fast" in imported and "numpy" in imported
+    torch = sorted(m for m in imported if m == "torch" or m.startswith("torch."))
+    assert not torch, torch
+    assert out.stat().st_size > 0 and out.read_text().count("\no ") >= 1

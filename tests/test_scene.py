@@ -1,0 +1,228 @@
+"""Captures as scenes: the support plane under an object found and removed (not an object's own
+flat face), clutter dropped, the modes of ``isolate``, and scenes decomposed object by object."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import pointcvx
+import pointcvx.evaluate
+from conftest import ROOT
+from pointcvx.scene import components, isolate, support_plane
+
+
+def box_points(lo, hi, n: int, rng) -> np.ndarray:
+    """(n, 3) float uniform samples of the surface of the axis-aligned box [lo, hi]."""
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    size = hi - lo
+    areas = np.array([size[1] * size[2], size[0] * size[2], size[0] * size[1]] * 2)
+    face = rng.choice(6, size=n, p=areas / areas.sum())
+    pts = lo + rng.random((n, 3)) * size
+    axis = face % 3
+    pts[np.arange(n), axis] = np.where(face < 3, lo[axis], hi[axis])
+    return pts
+
+
+def disc_points(center, radius: float, n: int, rng) -> np.ndarray:
+    """(n, 3) float uniform samples of a horizontal disc (z = center z)."""
+    r = radius * np.sqrt(rng.random(n))
+    t = 2 * np.pi * rng.random(n)
+    return np.stack([center[0] + r * np.cos(t), center[1] + r * np.sin(t), np.full(n, center[2])], axis=1)
+
+
+@pytest.fixture
+def rng():
+    return np.random.default_rng(7)
+
+
+def test_the_ground_disc_under_a_box_is_removed_and_gives_the_up_axis(rng):
+    box = box_points([-0.5, -0.3, 0.0], [0.5, 0.3, 0.8], 6000, rng)
+    ground = disc_points([0, 0, 0], 1.6, 6000, rng)
+    ground[:, 2] += rng.normal(0, 0.004, len(ground))  # splat-like depth noise
+    pts = np.concatenate([box, ground])
+    found = isolate(pts, "all")
+    assert found.support is not None and found.up @ [0, 0, 1] > 0.99
+    kept_ground = found.keep[len(box):].mean()
+    kept_box_above = found.keep[:len(box)][box[:, 2] > 0.05].mean()
+    assert kept_ground < 0.02 and kept_box_above > 0.98
+    assert found.removed["support"] >= 0.98 * len(ground)
+    kept = pts[found.keep]
+    assert np.ptp(kept[:, :2], axis=0).max() < 1.1  # the box's footprint, not the disc's
+
+
+def test_an_objects_own_flat_base_is_not_a_support(rng):
+    """A box on nothing: its bottom face is a plane with everything on one side, but it is the
+    object's own face (the sides rise from it), so it stays."""
+    pts = box_points([-0.5, -0.5, 0.0], [0.5, 0.5, 0.4], 8000, rng)
+    assert support_plane(pts) is None
+    assert isolate(pts, "all").keep.all()
+
+
+def test_a_floor_under_several_objects_is_the_support_and_each_object_is_a_piece(rng):
+    a = box_points([-2.0, -0.3, 0.0], [-1.2, 0.3, 0.9], 4000, rng)
+    b = box_points([1.0, -0.4, 0.0], [1.6, 0.4, 0.5], 3000, rng)
+    floor = np.stack([rng.uniform(-3, 3, 8000), rng.uniform(-1.5, 1.5, 8000), np.zeros(8000)], axis=1)
+    pts = np.concatenate([a, b, floor])
+    found = isolate(pts, "all")
+    assert found.support is not None and found.pieces == 2
+    assert found.keep[len(a) + len(b):].mean() < 0.02
+
+
+def test_clutter_pieces_are_dropped_and_the_modes_do_what_they_say(rng):
+    obj = box_points([-0.5, -0.5, -0.5], [0.5, 0.5, 0.5], 8000, rng)
+    crumbs = np.concatenate([box_points(c, np.add(c, 0.04), 40, rng) for c in
+                             ([1.5, 0, 0], [0, 1.7, 0.2], [-1.6, -1.2, 0.5])])
+    pts = np.concatenate([obj, crumbs])
+    found = isolate(pts, "all")
+    assert found.keep[:len(obj)].all() and not found.keep[len(obj):].any()
+    assert found.removed["clutter"] == len(crumbs) and found.pieces == 1
+    assert isolate(pts, "none").keep.all()
+    second = box_points([2.0, -0.3, -0.2], [2.8, 0.6, 0.3], 4000, rng)
+    two = np.concatenate([obj, second])
+    assert isolate(two, "all").pieces == 2
+    largest = isolate(two, "largest")
+    assert largest.keep[:len(obj)].all() and not largest.keep[len(obj):].any()
+    cropped = isolate(two, "none", crop=np.array([[-1, -1, -1], [1, 1, 1]]))
+    assert cropped.keep.sum() == len(obj) and cropped.removed["crop"] == len(second)
+
+
+def test_components_follow_local_spacing(rng):
+    """A dense piece and a sparse one far apart: two pieces; each stays whole."""
+    dense = rng.uniform(0, 1, (3000, 3)) * [1, 1, 0.01]
+    sparse = rng.uniform(0, 1, (300, 3)) * [4, 4, 0.01] + [10, 0, 0]
+    labels = components(np.concatenate([dense, sparse]))
+    assert len(np.unique(labels[:3000])) == 1 and len(np.unique(labels[3000:])) == 1
+    assert labels[0] != labels[-1] and labels[0] == 0  # the largest piece is label 0
+
+
+def _write_xyz(path, pts):
+    np.savetxt(path, pts, fmt="%.6f")
+    return path
+
+
+def test_loading_a_scan_isolates_it_and_reports_what_was_removed(tmp_path, rng):
+    box = box_points([-0.5, -0.3, 0.0], [0.5, 0.3, 0.8], 5000, rng)
+    ground = disc_points([0, 0, 0], 1.6, 5000, rng)
+    path = _write_xyz(tmp_path / "boxscan.xyz", np.concatenate([box, ground]))
+    cloud = pointcvx.load(path, normalize=False)
+    iso = cloud.info["isolation"]
+    assert iso["mode"] == "all" and iso["removed"]["support"] > 4500
+    assert cloud.info["up"][2] > 0.99
+    assert len(cloud.removed) == iso["removed"]["support"] + iso["removed"]["clutter"]
+    assert len(cloud) == iso["kept"]
+    everything = pointcvx.load(path, normalize=False, isolate="none")
+    assert "isolation" not in everything.info and everything.removed is None
+    assert len(everything) == len(cloud) + len(cloud.removed)
+
+
+BOXES = [([-2.0, -0.3, 0.0], [-1.2, 0.3, 0.9]), ([1.0, -0.4, 0.0], [1.6, 0.4, 0.5])]
+
+
+@pytest.fixture(scope="module")
+def two_boxes(tmp_path_factory):
+    """A scan (XYZ file) of two boxes on a floor, with z up, and its decomposition as a scene."""
+    rng = np.random.default_rng(7)
+    a = box_points(*BOXES[0], 4000, rng)
+    b = box_points(*BOXES[1], 3000, rng)
+    floor = np.stack([rng.uniform(-3, 3, 6000), rng.uniform(-1.5, 1.5, 6000), np.zeros(6000)], axis=1)
+    path = _write_xyz(tmp_path_factory.mktemp("scene") / "twoboxes.xyz", np.concatenate([a, b, floor]))
+    return path, pointcvx.decompose(path, features="model", n_points=6000, max_hulls=8)
+
+
+def test_a_scan_of_two_objects_on_a_floor_is_decomposed_object_by_object(two_boxes):
+    path, result = two_boxes
+    assert result.params["scene"] is True and len(result.objects) == 2
+    assert sum(len(o["hulls"]) for o in result.objects) == len(result.hulls)
+    for obj, (lo, hi) in zip(result.objects, BOXES, strict=True):
+        np.testing.assert_allclose(obj["bounds"][0], lo, atol=0.1)
+        np.testing.assert_allclose(obj["bounds"][1], hi, atol=0.1)
+        for h in obj["hulls"]:  # each hull lies within its object's box
+            v = result.hulls[h].vertices
+            assert (v >= np.subtract(lo, 0.1)).all() and (v <= np.add(hi, 0.1)).all()
+    assert (result.labels >= -1).all() and result.labels.max() == len(result.hulls) - 1
+    again = result.recut(max_hulls=2)
+    assert len(again.objects) == 2 and len(again.hulls) <= 4
+    single = pointcvx.decompose(path, features="model", n_points=6000, max_hulls=8, scene="off")
+    assert single.objects is None and single.params["scene"] == "off"
+    assert result.removed_points is not None and len(result.removed_points) > 2500  # the floor, thinned
+
+
+def test_a_scene_is_one_body_per_object_on_a_static_plane_and_rests_in_mujoco(two_boxes, tmp_path):
+    mujoco = pytest.importorskip("mujoco")
+    path, result = two_boxes
+    (main, *meshes) = result.export(tmp_path / "two.xml")
+    model = mujoco.MjModel.from_xml_path(str(main))
+    assert model.nbody == 1 + len(result.objects)  # the world holds the support plane
+    plane = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_GEOM, "support")
+    assert plane >= 0 and model.geom_type[plane] == mujoco.mjtGeom.mjGEOM_PLANE
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    start = data.xpos[1:].copy()
+    for _ in range(int(1.5 / model.opt.timestep)):
+        mujoco.mj_step(model, data)
+    # the boxes settle on the floor (their bottoms were under the floor's band), never through it
+    drop = start[:, 2] - data.xpos[1:, 2]
+    assert (drop > -0.01).all() and (drop < 0.1).all(), drop
+    assert np.abs(data.xpos[1:, :2] - start[:, :2]).max() < 0.05
+    assert len(meshes) == len(result.hulls)
+
+
+def test_a_scene_as_urdf_and_usd(two_boxes, tmp_path):
+    import xml.etree.ElementTree as ET
+
+    path, result = two_boxes
+    urdf = result.export(tmp_path / "two.urdf")[0]
+    robot = ET.parse(urdf).getroot()
+    links = [link.get("name") for link in robot.findall("link")]
+    assert links == ["two", "object_00", "object_01"]
+    joints = robot.findall("joint")
+    assert [j.get("type") for j in joints] == ["fixed", "fixed"]
+    assert robot.find("link/collision/geometry/box") is not None  # the support
+    counts = [len(link.findall("collision")) for link in robot.findall("link")[1:]]
+    assert counts == [len(o["hulls"]) for o in result.objects]
+    pytest.importorskip("pxr")
+    from pxr import Usd, UsdPhysics
+
+    stage = Usd.Stage.Open(str(result.export(tmp_path / "two.usda")[0]))
+    bodies = [p for p in stage.Traverse() if p.HasAPI(UsdPhysics.RigidBodyAPI)]
+    assert sorted(p.GetName() for p in bodies) == ["object_00", "object_01"]
+    support = stage.GetPrimAtPath("/two/support/box")
+    assert support.IsValid() and support.HasAPI(UsdPhysics.CollisionAPI)
+    assert not support.GetParent().HasAPI(UsdPhysics.RigidBodyAPI)  # static
+
+
+def test_the_report_names_objects_support_and_how_far_each_hull_reaches_out(two_boxes, tmp_path):
+    import json
+
+    path, result = two_boxes
+    report = json.loads(result.export(tmp_path / "two.json")[0].read_text())
+    assert [o["name"] for o in report["objects"]] == ["object_00", "object_01"]
+    assert report["support_plane"]["normal"][2] > 0.99 and report["up_detected"][2] > 0.99
+    assert report["isolation"]["removed"]["support"] > 0
+    offsets = [h["max_offset"] for h in report["hulls"]]
+    assert all(0 <= o < 0.5 for o in offsets)  # input units: the boxes are about a metre
+    assert report["totals"]["max_offset"] == max(offsets)
+
+
+def test_the_up_axis_turns_robot_files_not_hull_coordinates(tmp_path):
+    """A mesh whose up is -y: the MJCF body is turned so -y becomes +z; the hull files keep the
+    input's coordinates; the default (no support plane found on a mesh) leaves it as it is."""
+    import xml.etree.ElementTree as ET
+
+    from pointcvx.export.robots import quaternion, up_rotation
+
+    mug = pointcvx.decompose(str(ROOT / "io" / "mug.obj"), features="model", n_points=2000, max_hulls=3)
+    plain = ET.parse(mug.export(tmp_path / "a.xml")[0]).getroot().find("worldbody/body")
+    assert plain.get("quat") is None
+    files = mug.export(tmp_path / "b.xml", up="-y")
+    turned = ET.parse(files[0]).getroot().find("worldbody/body")
+    q = np.array([float(v) for v in turned.get("quat").split()])
+    np.testing.assert_allclose(q, quaternion(up_rotation([0, -1, 0])), atol=1e-8)
+    np.testing.assert_allclose(up_rotation([0, -1, 0]) @ [0, -1, 0], [0, 0, 1], atol=1e-12)
+    hull = next(f for f in files if "collision_0" in f.name)
+    first = pointcvx.evaluate.load_hulls(hull)[0]
+    assert np.abs(first - mug.hulls[0].vertices).min(axis=0).max() < 1e-9 or \
+        np.allclose(np.sort(first, axis=0), np.sort(mug.hulls[0].vertices, axis=0))
+    with pytest.raises(pointcvx.OutputError, match="up must be"):
+        mug.export(tmp_path / "c.xml", up="sideways")

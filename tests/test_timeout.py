@@ -1,0 +1,112 @@
+"""``decompose(timeout=...)`` and ``pointcvx decompose --timeout``: a clear error, on time, and
+no output; library warnings kept off the terminal."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+
+import pytest
+
+import pointcvx
+from conftest import DATA
+from pointcvx.deadline import Deadline
+from pointcvx.errors import TimeLimitError
+
+
+def test_deadline_checks_and_names_the_stage():
+    none = Deadline(None)
+    none.check("anything")
+    assert none.left() == float("inf") and none.watch(None) is None
+    past = Deadline(1e-9)
+    time.sleep(0.01)
+    seen = []
+    report = past.watch(lambda *a: seen.append(a))
+    with pytest.raises(TimeLimitError, match=r"1e-09 s \(while split\); nothing was written"):
+        report("split", 1, 4)
+    assert seen == []  # the callback is not reached once the time is up
+
+
+def test_api_timeout_stops_the_feature_optimisation():
+    """A whole decomposition of chair.off with per-shape optimisation takes 12-20 s here; a
+    1.5 s limit ends it at the next check: the longest stretch without one is the sampling of
+    the convex pairs (about 1 s quiet, 3 s on a busy machine)."""
+    t = time.monotonic()
+    with pytest.raises(TimeLimitError, match=r"1.5 s \(while features\)"):
+        pointcvx.decompose(DATA / "vhacd61" / "chair.off", features="optimize", timeout=1.5)
+    took = time.monotonic() - t
+    assert 1.5 <= took < 7.0, took
+
+
+def test_cli_watchdog_ends_a_run_without_steps(tmp_path):
+    """Loading reports no steps; the command's watchdog ends it shortly after the limit. A
+    40-times subdivided soup of overlapping triangles keeps the mesh loader busy for seconds."""
+    import numpy as np
+    import trimesh
+
+    rng = np.random.default_rng(0)
+    tri = rng.random((60000, 3, 3))
+    soup = trimesh.Trimesh(tri.reshape(-1, 3), np.arange(len(tri) * 3).reshape(-1, 3), process=False)
+    stl = tmp_path / "soup.stl"
+    soup.export(stl)
+    out = tmp_path / "soup.obj"
+    t = time.monotonic()
+    run = subprocess.run([sys.executable, "-m", "pointcvx", "decompose", str(stl), "-o", str(out),
+                          "-q", "--timeout", "0.5"], capture_output=True, text=True, timeout=120)
+    took = time.monotonic() - t
+    assert run.returncode == 1, run.stderr
+    assert run.stderr.strip().splitlines() == [
+        "pointcvx: error: stopped after the time limit of 0.5 s; nothing was written"], run.stderr
+    assert not out.exists()
+    assert took < 15, took  # start-up plus the 0.5 s limit and its 1 s grace
+
+
+def test_api_timeout_checked():
+    with pytest.raises(pointcvx.InputError, match="timeout"):
+        pointcvx.decompose(DATA / "vhacd61" / "cup.off", timeout=0)
+
+
+def test_generous_timeout_changes_nothing():
+    kw = dict(features="model", n_points=3000, max_hulls=4)
+    a = pointcvx.decompose(DATA / "vhacd61" / "cup.off", **kw)
+    b = pointcvx.decompose(DATA / "vhacd61" / "cup.off", timeout=600, **kw)
+    assert len(a.hulls) == len(b.hulls)
+    for x, y in zip(a.hulls, b.hulls, strict=True):
+        assert (x.vertices == y.vertices).all()
+
+
+def test_cli_timeout_one_line_no_output(tmp_path):
+    out = tmp_path / "chair.obj"
+    run = subprocess.run([sys.executable, "-m", "pointcvx", "decompose", str(DATA / "vhacd61" / "chair.off"),
+                          "-o", str(out), "--features", "optimize", "--timeout", "2"],
+                         capture_output=True, text=True, timeout=120)
+    assert run.returncode == 1, run.stderr
+    lines = [line for line in run.stderr.splitlines() if line.strip() and "\r" not in line]
+    assert lines[-1].startswith("pointcvx: error: stopped after the time limit of 2 s"), run.stderr
+    assert "Traceback" not in run.stderr
+    assert not out.exists() and list(tmp_path.iterdir()) == []
+
+
+def test_cli_rejects_bad_timeout():
+    run = subprocess.run([sys.executable, "-m", "pointcvx", "decompose", "x.obj", "--timeout", "-1"],
+                         capture_output=True, text=True, timeout=60)
+    assert run.returncode == 2 and "timeout" in run.stderr
+
+
+def test_cli_keeps_library_warnings_off_stderr(tmp_path):
+    """A library warning raised inside a command is not printed (only with -v, as a log line)."""
+    code = ("import warnings, sys; from pointcvx import cli; from pointcvx.cli import info; "
+            "real = info.run\n"
+            "def run(args):\n"
+            "    warnings.warn('overflow encountered', RuntimeWarning)\n"
+            "    return real(args)\n"
+            "info.run = run\n"
+            "sys.exit(cli.main(sys.argv[1:]))")
+    cup = str(DATA / "vhacd61" / "cup.off")
+    quiet = subprocess.run([sys.executable, "-c", code, "info", cup], capture_output=True, text=True,
+                           timeout=120)
+    assert quiet.returncode == 0 and "overflow" not in quiet.stderr, quiet.stderr
+    loud = subprocess.run([sys.executable, "-c", code, "info", cup, "-v"], capture_output=True,
+                          text=True, timeout=120)
+    assert loud.returncode == 0 and "RuntimeWarning: overflow encountered" in loud.stderr
