@@ -145,23 +145,21 @@ def compute_features(cloud: OrientedCloud, solid, *, method: str = "auto", seed:
     if method == "fast":
         from .features import fast
 
-        if progress is not None:  # step 0: the convex pairs (a time limit is checked here too)
-            progress("features", 0, fast.FAST_STEPS)
-        triplets = fast.sample_fast_triplets(solid, cloud.points, cloud.normals, seed=seed,
-                                             **fast.FAST_TRIPLETS)
-        report = None if progress is None else (
-            lambda step, loss: progress("features", step + 1, fast.FAST_STEPS))
-        source = fast.fit_fast_field(triplets, steps=fast.FAST_STEPS, lr=fast.FAST_LR, seed=seed,
-                                     progress=report)
-        return source, source.features(cloud.points)
-    from .features import sample_triplets
-    from .features.field import optimize_field
+        total = fast.FAST_STEPS
+        sample = functools.partial(fast.sample_fast_triplets, **fast.FAST_TRIPLETS)
+        fit = functools.partial(fast.fit_fast_field, steps=total, lr=fast.FAST_LR)
+    else:
+        from .features import sample_triplets
+        from .features.field import optimize_field
 
+        total = steps
+        sample = functools.partial(sample_triplets, **SINGLE_SHAPE_TRIPLETS)
+        fit = functools.partial(optimize_field, steps=steps)
     if progress is not None:  # step 0: the convex pairs (a time limit is checked here too)
-        progress("features", 0, steps)
-    triplets = sample_triplets(solid, cloud.points, cloud.normals, seed=seed, **SINGLE_SHAPE_TRIPLETS)
-    report = None if progress is None else (lambda step, loss: progress("features", step + 1, steps))
-    source = optimize_field(triplets, steps=steps, seed=seed, progress=report)
+        progress("features", 0, total)
+    triplets = sample(solid, cloud.points, cloud.normals, seed=seed)
+    report = None if progress is None else (lambda step, loss: progress("features", step + 1, total))
+    source = fit(triplets, seed=seed, progress=report)
     return source, source.features(cloud.points)
 
 

@@ -316,14 +316,15 @@ def cut_decomposition(decomposer, cloud: OrientedCloud, params: dict, timings: d
     # The features are computed once per decomposer, when a cut first splits; every cut that
     # splits reports their time, whichever computed them, and a cut that does not reports 0.
     timings["features"] = 0.0
-    if decomposer.will_split(params["threshold"], params["max_hulls"]):
+    splits = decomposer.will_split(params["threshold"], params["max_hulls"])
+    if splits:
         # Outside the single-thread limit below: the model's forward pass uses every core.
         decomposer.load_features(progress)
         timings["features"] = decomposer.feature_seconds
     t = time.perf_counter()
     report = None if progress is None else (
         lambda n, worst: progress("split", n, params["max_hulls"]))
-    if decomposer.will_split(params["threshold"], params["max_hulls"]):
+    if splits:
         # The splits' clustering loads scikit-learn's OpenMP runtime; threadpoolctl limits only
         # the runtimes already loaded, so load it before the limit (without torch loaded first,
         # k-means otherwise ran on every core: 12-14 s instead of 2 s on chair.off, 2 cores).

@@ -9,7 +9,7 @@ from pathlib import Path
 
 from ..errors import OutputError
 from ..io.files import atomic_path
-from ..io.outputs import make_folders, remove_made, write_folder
+from ..io.outputs import check_ancestors, make_folders, remove_made, write_folder
 
 log = logging.getLogger(__name__)
 
@@ -51,11 +51,7 @@ def write_files(files: dict[Path, str | bytes], overwrite: bool = False,
         raise OutputError(f"{path}: is a folder")
     if path.exists() and not overwrite:
         raise OutputError(f"{path}: exists; pass overwrite to replace it")
-    for above in path.parents:
-        if os.path.lexists(above):
-            if not above.is_dir():
-                raise OutputError(f"{path.parent}: cannot create the output folder ({above} is not a folder)")
-            break
+    check_ancestors(path.parents, path.parent)
     made = make_folders(path.parent)
     try:
         with atomic_path(path, overwrite=True) as tmp:

@@ -218,11 +218,7 @@ def check_folder(folder: str | os.PathLike, overwrite: bool = False,
     shown, target = Path(folder), Path(os.path.abspath(folder))  # messages name the path as given
     if target.parent == target:
         raise OutputError(f"{shown}: cannot be an output folder")
-    for above in target.parents:
-        if os.path.lexists(above):
-            if not above.is_dir():
-                raise OutputError(f"{shown}: cannot create the output folder ({above} is not a folder)")
-            break
+    check_ancestors(target.parents, shown)
     if not os.path.lexists(target):
         return "absent"
     if not target.is_dir():
@@ -296,6 +292,16 @@ def replace_folder(new: str | os.PathLike, target: str | os.PathLike, exchange: 
             os.rename(aside, target)
         raise
     shutil.rmtree(aside, ignore_errors=True)
+
+
+def check_ancestors(ancestors, shown: str | os.PathLike) -> None:
+    """:class:`OutputError` naming ``shown`` when the nearest existing path among ``ancestors``
+    (a path's ``.parents``, nearest first) is not a folder: the output's folder cannot be made."""
+    for above in ancestors:
+        if os.path.lexists(above):
+            if not above.is_dir():
+                raise OutputError(f"{shown}: cannot create the output folder ({above} is not a folder)")
+            return
 
 
 def make_folders(folder: Path) -> list[Path]:

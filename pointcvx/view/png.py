@@ -197,7 +197,7 @@ def render(drawing: Drawing, size: tuple[int, int] = SIZE, *, azimuth: float = -
     if width < 16 or height < 16 or width * height > 16_000_000:
         raise InputError(f"picture size must be between 16x16 and 16 megapixels, got {width}x{height}")
     ss = max(int(supersample), 1)
-    cam = camera(drawing.up, azimuth, elevation, getattr(drawing, "up_exact", None))
+    cam = camera(drawing.up, azimuth, elevation, drawing.up_exact)
     light = _light(cam)
     lo, hi = drawing.bounds()
     center = (lo + hi) / 2.0
