@@ -28,6 +28,8 @@ ENGINE_TARGETS = ("mujoco", "bullet", "physx", "physx-gpu", "newton", "unity")
 ISOLATE_MODES = ("auto", "all", "largest", "none")
 #: Whether a capture is decomposed as a scene of objects (:mod:`pointcvx.scene.objects`).
 SCENE_MODES = ("auto", "on", "off")
+#: Where points are moved to the middle of their surface band first (pointcvx.scene.band).
+BAND_MODES = ("auto", "on", "off")
 #: Surface points :func:`pointcvx.decompose` works on when ``n_points`` is not given.
 DECOMPOSE_POINTS = 20000
 
@@ -306,6 +308,10 @@ class DecomposeOptions(Options):
         "concavity measure, for splats whose Gaussians form a layer under the surface; off by "
         "default, since the walls of narrow folds read as deep too", float, "--subsurface",
         metavar="DEPTH", low=0, low_open=True, optional=True)
+    band: str = option(
+        "auto", "move each point along its normal to the middle of the surface band it scatters "
+        "in (splat centres, sensor noise) before decomposing, so hulls sit on the surface, not "
+        "on the band's outer edge: on, off, or auto (splats)", str, "--band", choices=BAND_MODES)
     target: str | None = option(
         None, "keep every hull within this engine's per-hull caps (reduced hulls still contain "
         "their part)", str, "--target", choices=ENGINE_TARGETS, optional=True)

@@ -37,6 +37,9 @@ from .scene.objects import is_scene, may_be_scene, object_pieces
 #: Modalities whose default feature source is the bundled model (docs/model.md compares the
 #: sources per modality); the others are optimised per shape.
 MODEL_MODALITIES = ("splat",)
+#: Modalities whose points are moved to the middle of their surface band by default
+#: (``band="auto"``; docs/captures.md, "Splats judged against their meshes").
+BAND_MODALITIES = ("splat",)
 
 Progress = Callable[[str, int, int], None]
 """progress(stage, done, total): stage is "features" or "split"."""
@@ -242,6 +245,10 @@ def _decompose_cloud(cloud: OrientedCloud, dec: DecomposeOptions, load: LoadOpti
     deadline = deadline or Deadline(None)
     deadline.check("building the solid")
     t = time.perf_counter()
+    if dec.band == "on" or (dec.band == "auto" and cloud.modality in BAND_MODALITIES):
+        from .scene.band import flatten_band
+
+        cloud = cloud.replace(points=flatten_band(cloud.points, cloud.normals))
     solid = solid_for(cloud)
     surface = None
     if dec.subsurface is not None:

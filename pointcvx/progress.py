@@ -38,7 +38,11 @@ class LazyBar:
 
 
 class StageBars:
-    """One :class:`LazyBar` per pipeline stage, as a ``progress(stage, done, total)`` callback."""
+    """One :class:`LazyBar` per pipeline stage, as a ``progress(stage, done, total)`` callback.
+
+    Stages run one after the other ("features", "split", or a scene's "object 2/3 features"):
+    a new stage closes the bars before it, so one bar is on screen at a time.
+    """
 
     def __init__(self, enabled: bool):
         self.enabled = enabled
@@ -46,7 +50,8 @@ class StageBars:
 
     def __call__(self, stage: str, done: int, total: int) -> None:
         if stage not in self.bars:
-            self.bars[stage] = LazyBar(self.enabled, stage, "step" if stage == "features" else "hull")
+            self.close()
+            self.bars[stage] = LazyBar(self.enabled, stage, "step" if stage.endswith("features") else "hull")
         self.bars[stage].set(done, total)
 
     def close(self) -> None:

@@ -61,7 +61,8 @@ class Decomposition:
     hulls : list of ConvexHull
         In the input's units; every cloud point lies in the hull of its part.
     labels : (n,) int64
-        Hull index of each point of ``cloud``.
+        Hull index of each point of ``cloud``; -1 for a scan's or splat's noise (tiny leaves,
+        counted in ``cloud.info["noise_points"]``) and a scene's points of no object.
     cloud : OrientedCloud
         The points that were decomposed (normalised frame; ``cloud.normalization`` maps back).
     features : (n, k) float32
@@ -339,7 +340,7 @@ def cut_decomposition(decomposer, cloud: OrientedCloud, params: dict, timings: d
             parts, concavity = decomposer.leaf_parts(leaves, params["threshold"])
     timings["merge"] = time.perf_counter() - t
     t = time.perf_counter()
-    labels = np.empty(len(cloud), dtype=np.int64)
+    labels = np.full(len(cloud), -1, dtype=np.int64)  # -1: noise, in no hull (leaf_parts)
     hulls = []
     back = cloud.normalization
     for i, (idx, conc) in enumerate(zip(parts, concavity, strict=True)):
@@ -348,6 +349,9 @@ def cut_decomposition(decomposer, cloud: OrientedCloud, params: dict, timings: d
         hulls.append(ConvexHull(back.inverse(h.vertices), h.faces.astype(np.int64), float(conc),
                                 int(len(idx))))
     timings["hulls"] = time.perf_counter() - t
+    noise = int(np.count_nonzero(labels < 0))
+    if noise or "noise_points" in cloud.info:  # a recut may drop none where an earlier cut did
+        cloud = cloud.replace(info={**cloud.info, "noise_points": noise})
     if start is not None:
         timings["total"] = time.perf_counter() - start
     else:
@@ -369,7 +373,7 @@ def merge_parts(parts: list[Decomposition], pieces: list[np.ndarray], cloud: Ori
     objects = []
     for k, (part, idx) in enumerate(zip(parts, pieces, strict=True)):
         first = len(hulls)
-        labels[idx] = part.labels + first
+        labels[idx] = np.where(part.labels >= 0, part.labels + first, -1)
         hulls.extend(part.hulls)
         tree.extend({**node, "object": k} for node in part.tree)
         pts = part.cloud.normalization.inverse(part.cloud.points)
@@ -380,6 +384,9 @@ def merge_parts(parts: list[Decomposition], pieces: list[np.ndarray], cloud: Ori
         for key, value in part.timings.items():
             if key != "total":
                 timings[key] = timings.get(key, 0.0) + value
+    noise = sum(int(part.cloud.info.get("noise_points", 0)) for part in parts)
+    if noise:
+        cloud = cloud.replace(info={**cloud.info, "noise_points": noise})
     timings["total"] = (time.perf_counter() - start) if start is not None else sum(timings.values())
     params = {**parts[0].params, "scene": True, "objects": len(parts)} if parts else {"scene": True}
     return Decomposition(hulls, labels, cloud, tree, timings, params, objects=objects,

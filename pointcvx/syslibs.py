@@ -94,9 +94,56 @@ def install_hint(library: str) -> str:
     return "install it with the system's package manager"
 
 
+#: open3d's plotly drawing, which ``import open3d`` runs eagerly (it imports dash and plotly:
+#: 0.3-0.5 s of CPU in every process that touches open3d, about half of open3d's import).
+PLOTLY_MODULE = "open3d.visualization.draw_plotly"
+PLOTLY_FUNCTIONS = ("get_plotly_fig", "draw_plotly", "draw_plotly_server")
+
+
+def defer_open3d_plotly() -> bool:
+    """Put a stand-in for :data:`PLOTLY_MODULE` in ``sys.modules`` before open3d is imported:
+    its functions load the real module on first call and forward to it, so open3d's plotly
+    drawing still works for a user who calls it. False (nothing done) when open3d is already
+    imported or its file is not where expected."""
+    import importlib.util
+    import os
+    import types
+
+    if "open3d" in sys.modules or PLOTLY_MODULE in sys.modules:
+        return False
+    spec = importlib.util.find_spec("open3d")
+    if spec is None or not spec.submodule_search_locations:
+        return False
+    path = os.path.join(spec.submodule_search_locations[0], "visualization", "draw_plotly.py")
+    if not os.path.isfile(path):
+        return False
+
+    def real():
+        module = sys.modules.get(PLOTLY_MODULE)
+        if module is not None and module is not stub:
+            return module
+        loaded = importlib.util.spec_from_file_location(PLOTLY_MODULE, path)
+        module = importlib.util.module_from_spec(loaded)
+        sys.modules[PLOTLY_MODULE] = module
+        loaded.loader.exec_module(module)
+        return module
+
+    stub = types.ModuleType(PLOTLY_MODULE, "pointcvx.syslibs's stand-in: loads the real module on first use.")
+    for name in PLOTLY_FUNCTIONS:
+        def forward(*args, _name=name, **kwargs):
+            return getattr(real(), _name)(*args, **kwargs)
+
+        forward.__name__ = name
+        setattr(stub, name, forward)
+    sys.modules[PLOTLY_MODULE] = stub
+    return True
+
+
 def import_open3d():
-    """The ``open3d`` module; :class:`MissingLibraryError` if a system library it links is missing."""
+    """The ``open3d`` module; :class:`MissingLibraryError` if a system library it links is missing.
+    Its plotly drawing is loaded on first use (:func:`defer_open3d_plotly`)."""
     preload_libusb()
+    defer_open3d_plotly()
     try:
         import open3d
     except (ImportError, OSError) as exc:

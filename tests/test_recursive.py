@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import trimesh
 from shapes import l_block, torus
 
 import pointcvx
@@ -145,12 +146,17 @@ def test_split_score_ranks_concavity_first_and_breaks_convex_ties_by_volume():
     assert split_score((0.0, 5.0), (0.0, 5.0)) < split_score((2e-3, 1.0), (0.0, 1.0))
 
 
-def test_stray_leaves_join_their_nearest_parts():
-    """A leaf of a few scattered points (too small to split, above the threshold: its hull
-    would span the L's notch) is dissolved into the parts nearest to each of its points."""
+def stray_setup(points_only: bool = False):
+    """An over-split L (mesh samples, or the same points as a bare cloud) whose leaves give up a
+    few scattered points to a stray leaf: (decomposer, leaves without the stray, stray node, the
+    stray's (m,) point indices)."""
     from scipy.spatial import cKDTree
 
-    dec = pointcvx.decompose(l_block(), threshold=0.05, n_points=6000, seed=0)._decomposer
+    shape = l_block()
+    if points_only:
+        shape = trimesh.sample.sample_surface(shape, 6000, seed=3)[0]
+    dec = pointcvx.decompose(shape, threshold=0.05, n_points=6000, seed=0)._decomposer
+    assert dec.is_mesh is not points_only
     leaves = over_split(dec, 10)
     # Points on the cube's top and at the far end of the bar (normalised frame: the notch is
     # x in [0, 1], z in [0, 1]).
@@ -165,7 +171,15 @@ def test_stray_leaves_join_their_nearest_parts():
         if len(rest) < len(idx):
             leaf = dec.tree.add(leaf, rest, dec.concavity(rest)).id
         rest_leaves.append(leaf)
-    s = dec.tree.add(None, stray, dec.concavity(stray))
+    return dec, leaves, rest_leaves, dec.tree.add(None, stray, dec.concavity(stray)), stray
+
+
+def test_stray_leaves_join_their_nearest_parts():
+    """A leaf of a few scattered points (too small to split, above the threshold: its hull
+    would span the L's notch) is dissolved into the parts nearest to each of its points."""
+    from scipy.spatial import cKDTree
+
+    dec, leaves, rest_leaves, s, stray = stray_setup()
     threshold = 0.15
     assert s.concavity > threshold  # the precondition: a stray
 
@@ -187,3 +201,62 @@ def test_stray_leaves_join_their_nearest_parts():
     # Without a stray the leaves are the parts, unchanged.
     parts, conc = dec.leaf_parts(leaves, 1.0)
     assert all(np.array_equal(p, dec.tree.nodes[leaf].indices) for p, leaf in zip(parts, leaves, strict=True))
+
+
+def test_a_clouds_tiny_leaves_are_noise_in_no_part():
+    """On a scan or splat the same stray is dropped, not absorbed: its points are in no part
+    (label -1 in the result), the other leaves are unchanged, and merging works around them.
+    When tiny leaves hold over NOISE_FRACTION of the points, none is dropped (strays are
+    absorbed as on a mesh)."""
+    from pointcvx.decomposition.tree import NOISE_FRACTION
+
+    dec, _, rest_leaves, s, stray = stray_setup(points_only=True)
+    threshold = 0.15
+    assert s.concavity > threshold
+    size = {leaf: len(dec.tree.nodes[leaf].indices) for leaf in rest_leaves}
+    kept = [leaf for leaf in rest_leaves if size[leaf] >= 8]  # the over-split may leave tiny ones too
+    noise = np.concatenate([stray] + [dec.tree.nodes[leaf].indices for leaf in rest_leaves if size[leaf] < 8])
+    assert len(noise) <= NOISE_FRACTION * len(dec.points)
+    parts, conc = dec.leaf_parts(rest_leaves + [s.id], threshold)
+    assert len(parts) == len(kept)
+    for p, leaf in zip(parts, kept, strict=True):
+        assert np.array_equal(p, dec.tree.nodes[leaf].indices)
+    assert conc == [dec.tree.nodes[leaf].concavity for leaf in kept]
+    merged, merged_conc = dec.merge(rest_leaves + [s.id], threshold)
+    covered = np.concatenate(merged)
+    assert np.array_equal(np.sort(covered), np.setdiff1d(np.arange(len(dec.points)), noise))
+    assert max(merged_conc) <= threshold
+    # Tiny leaves (7 points each) holding over the noise budget: every point stays in a part.
+    big = max(kept, key=lambda leaf: size[leaf])
+    idx = dec.tree.nodes[big].indices
+    many = int(NOISE_FRACTION * len(dec.points)) // 7 + 1
+    chunks = np.split(idx[: 7 * many], many)
+    rest = idx[7 * many :]
+    leaves = [leaf for leaf in rest_leaves if leaf != big]
+    leaves.append(dec.tree.add(None, rest, dec.concavity(rest)).id)
+    leaves += [dec.tree.add(None, c, dec.concavity(c)).id for c in chunks]
+    parts, _ = dec.leaf_parts(leaves, threshold)
+    everyone = np.sort(np.concatenate([dec.tree.nodes[leaf].indices for leaf in leaves]))
+    assert np.array_equal(np.sort(np.concatenate(parts)), everyone)
+
+
+def test_a_scans_result_labels_its_noise_minus_one_and_reports_it():
+    """End to end on a cloud with a few far floaters: their points get label -1 and count as
+    noise in the cloud's info and the report; no hull is a sliver of a few points."""
+    rng = np.random.default_rng(4)
+    pts = trimesh.sample.sample_surface(l_block(), 6000, seed=5)[0]
+    floaters = rng.uniform(-0.4, 2.4, size=(5, 3)) * [1, 1, 0] + [0, 0, 2.6]  # above the L
+    result = pointcvx.decompose(np.vstack([pts, floaters]), threshold=0.05, n_points=6005, seed=0,
+                                features="fast")
+    noise = result.labels < 0
+    assert 0 < noise.sum() <= 0.01 * len(noise)
+    assert result.cloud.info["noise_points"] == noise.sum()
+    assert result.report()["totals"]["noise_points"] == noise.sum()
+    assert min(h.n_points for h in result.hulls) >= 8
+
+    from pointcvx.view.drawing import drawing_from
+    from pointcvx.view.png import caption_parts
+
+    legend = drawing_from(result).legend
+    assert legend["noise"] == noise.sum()
+    assert f"{noise.sum()} noise" in caption_parts(legend)

@@ -112,3 +112,20 @@ def test_the_baselines_one_shot_wrapper_adds_nothing_heavy():
     assert "pointcvx.apps.bench" in names
     assert heavy(names) == set(), heavy(names)
     assert not {n for n in names if n.startswith("pointcvx.apps.bench.")}  # no other bench module
+
+
+def test_open3d_comes_without_its_plotly_drawing_until_that_is_called(tmp_path):
+    """pointcvx's open3d import skips dash and plotly (half of open3d's import); a user's call of
+    open3d's plotly drawing still loads and runs the real one."""
+    code = ("import sys, numpy as np; from pointcvx.syslibs import import_open3d; o3d = import_open3d(); "
+            "assert 'open3d.pybind' in sys.modules and 'dash' not in sys.modules; "
+            "pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.random.rand(20, 3))); "
+            "fig = o3d.visualization.get_plotly_fig([pcd]); "
+            "assert type(fig).__name__ == 'Figure' and len(fig.data) == 1, fig; "
+            "assert 'dash' in sys.modules")
+    names = imported(code=code)
+    assert "open3d" in names and "plotly" in names
+    # A mesh decomposed with the fast features: open3d is used, dash never imported.
+    names = imported("decompose", str(MUG), "-o", str(tmp_path / "mug.obj"),
+                     "-q", "--features", "fast", "-n", "3000")
+    assert "open3d" in names and "dash" not in names and "torch" not in names

@@ -2,7 +2,7 @@
 
     python tools/eval_dataset.py ../shared/data/vhacd61 -o docs/results/vhacd61.csv \
         [--threshold 0.1] [--max-hulls 64] [--jobs 2] [--limit N] [--split auto] \
-        [--features optimize|model|auto] [--model CKPT] [--subsurface 0.05]
+        [--features optimize|model|auto] [--model CKPT] [--subsurface 0.05] [--band auto|on|off]
 
 Each shape runs in its own worker process (``--jobs`` at a time). For each shape: the time of
 ``pointcvx.decompose`` (features + splitting + merge + hulls) and the metrics of
@@ -26,7 +26,7 @@ import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 
-SKIP_SUFFIXES = {".md", ".txt", ".json", ".csv", ".urdf", ".mtl", ".png", ".jpg"}
+SKIP_SUFFIXES = {".md", ".txt", ".json", ".csv", ".urdf", ".mtl", ".png", ".jpg", ".npy"}
 
 
 def shape_names(files: list[str]) -> dict[str, str]:
@@ -115,6 +115,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--subsurface", type=float, default=None,
                     help="decompose(subsurface=...): depth below which points leave the measure")
+    ap.add_argument("--band", default="auto", choices=("auto", "on", "off"),
+                    help="decompose(band=...): points moved to the middle of their surface band")
     ap.add_argument("--truth", default=None,
                     help="folder of the true meshes (same stem, any mesh format): score against them")
     args = ap.parse_args(argv)
@@ -125,7 +127,7 @@ def main(argv: list[str] | None = None) -> int:
     opts = {"threshold": args.threshold, "max_hulls": args.max_hulls, "split": args.split,
             "blend": args.blend,
             "features": args.features, "model": args.model, "views": args.views, "seed": args.seed,
-            "subsurface": args.subsurface}
+            "subsurface": args.subsurface, "band": args.band}
     truths = {f: truth_file(args.truth, f) for f in files} if args.truth else dict.fromkeys(files)
     rows = []
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:

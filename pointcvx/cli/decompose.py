@@ -85,6 +85,8 @@ def summary_line(summary: dict, limits) -> str:
     removed = {k: v for k, v in (summary.get("removed") or {}).items() if v}
     if removed:
         line += "; removed " + ", ".join(f"{n} {why} points" for why, n in removed.items())
+    if summary.get("noise_points"):
+        line += f"; {summary['noise_points']} noise points in no hull"
     if limits.active:
         caps = ", ".join(f"{what} <= {v}" for what, v in (("vertices", limits.max_vertices),
                                                            ("triangles", limits.max_faces))
@@ -157,6 +159,7 @@ def run(args: argparse.Namespace) -> int:
         summary["objects"] = len(result.objects)
     if "isolation" in result.cloud.info:
         summary["removed"] = result.cloud.info["isolation"]["removed"]
+    summary["noise_points"] = int(result.cloud.info.get("noise_points", 0))
     summary["timings"] = {k: round(v, 3) for k, v in result.timings.items()}
     print(json.dumps(summary, indent=2) if args.json else summary_line(summary, limits))
     return 0

@@ -32,6 +32,9 @@ from .hull import convex_hull, hull_contains
 log = logging.getLogger(__name__)
 
 MIN_PART_POINTS = 4
+# A point cloud's leaves of fewer than 2 * MIN_PART_POINTS points are noise (floaters, scattered
+# sensor points) when together they are at most this fraction of the cloud; see leaf_parts.
+NOISE_FRACTION = 0.01
 
 
 @dataclass
@@ -121,7 +124,8 @@ class Decomposer:
         Clustering used to cut a part: k-means on [features, blend * xyz], or Ward linkage
         constrained to the surface neighbour graph ("auto": k-means).
     is_mesh : bool
-        Whether the cloud was sampled from a mesh (recorded; both modalities split alike).
+        Whether the cloud was sampled from a mesh. Both modalities split alike; a scan's or
+        splat's tiny leaves are dropped as noise where a mesh's are absorbed (:meth:`leaf_parts`).
     blend : float
         Weight of xyz (scaled to the part's size) against the features in the split.
     candidates : tuple of float
@@ -167,6 +171,7 @@ class Decomposer:
         self.rank_samples = int(rank_samples)
         self.refine = int(refine)
         self.seed = int(seed)
+        self.is_mesh = bool(is_mesh)
         self.surface = None if surface is None else np.asarray(surface, dtype=bool).reshape(-1)
         if self.surface is not None and len(self.surface) != len(self.points):
             raise InputError(f"surface mask has {len(self.surface)} entries for {len(self.points)} points")
@@ -395,16 +400,27 @@ class Decomposer:
         return sorted(done + [node_id for _, node_id in heap])
 
     def leaf_parts(self, leaves: list[int], threshold: float) -> tuple[list[np.ndarray], list[float]]:
-        """The parts (index arrays) and concavities of ``leaves``, strays absorbed.
+        """The parts (index arrays) and concavities of ``leaves``, tiny leaves dropped or absorbed.
 
-        A stray is a leaf too small to split (under ``2 * MIN_PART_POINTS`` points) whose
-        concavity is still above ``threshold``: a few scattered points (the tip of a thin
-        feature cut off by a split) whose hull would bridge empty space. Each of its points joins
-        the part of its nearest point in another leaf, and those parts are measured again.
+        A tiny leaf has under ``2 * MIN_PART_POINTS`` points, too few to split. On a mesh, one
+        whose concavity is still above ``threshold`` is a stray (the tip of a thin feature cut
+        off by a split, whose hull would bridge empty space): each of its points joins the part
+        of its nearest point in another leaf, and those parts are measured again. On a scan or
+        splat every tiny leaf is noise (a floater, scattered sensor points): absorbing it raised
+        a clean neighbour's concavity from under 0.1 to 0.37 on a depth frame, and its own hull
+        is a sliver. Its points belong to no part (label -1), as long as all of them together
+        are at most ``NOISE_FRACTION`` of the cloud; beyond that they are absorbed as on a mesh.
         """
         parts = [self.tree.nodes[leaf].indices for leaf in leaves]
         conc = [self.tree.nodes[leaf].concavity for leaf in leaves]
-        stray = {k for k, idx in enumerate(parts) if len(idx) < 2 * MIN_PART_POINTS and conc[k] > threshold}
+        tiny = {k for k, idx in enumerate(parts) if len(idx) < 2 * MIN_PART_POINTS}
+        if not self.is_mesh and tiny and len(tiny) < len(parts):
+            dropped = sum(len(parts[k]) for k in tiny)
+            if dropped <= NOISE_FRACTION * len(self.points):
+                log.debug("dropped %d tiny parts as noise (%d points)", len(tiny), dropped)
+                keep = [k for k in range(len(parts)) if k not in tiny]
+                return [parts[k] for k in keep], [conc[k] for k in keep]
+        stray = {k for k in tiny if conc[k] > threshold}
         if not stray or len(stray) == len(parts):
             return parts, conc
         keep = [k for k in range(len(parts)) if k not in stray]
@@ -431,7 +447,7 @@ class Decomposer:
         first, first_conc = self.leaf_parts(leaves, threshold)
         parts = dict(enumerate(first))
         conc = dict(enumerate(first_conc))
-        label = np.empty(len(self.points), dtype=np.int64)
+        label = np.full(len(self.points), -1, dtype=np.int64)  # -1: noise, in no part
         for i, idx in parts.items():
             label[idx] = i
         rough: dict[tuple[int, int], float] = {}  # coarse estimates of joint parts
@@ -440,7 +456,8 @@ class Decomposer:
         while len(parts) > 1:
             coo = self.graph.tocoo()
             a, b = label[coo.row], label[coo.col]
-            pairs = {(int(x), int(y)) for x, y in zip(a[a < b], b[a < b], strict=True)}
+            link = (a < b) & (a >= 0)
+            pairs = {(int(x), int(y)) for x, y in zip(a[link], b[link], strict=True)}
             def joint(pair: tuple[int, int]) -> np.ndarray:
                 return np.concatenate([parts[pair[0]], parts[pair[1]]])
 

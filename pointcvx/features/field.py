@@ -13,6 +13,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from .adam import Adam, cosine_lrs
 from .loss import info_nce
 from .pairs import Triplets
 
@@ -118,10 +119,9 @@ def _optimize(triplets, dim, steps, batch, negatives_per_step, lr, tau, seed, pr
     anchor = torch.as_tensor(triplets.anchor)
     positive = torch.as_tensor(triplets.positive, dtype=torch.float32)
     negative = torch.as_tensor(triplets.negative)
-    opt = torch.optim.Adam(model.parameters(), lr=lr)
-    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, T_max=max(steps, 1))
+    opt = Adam(model.parameters())  # torch.optim.Adam's updates without its torch._dynamo import
     model.train()
-    for step in range(steps):
+    for step, step_lr in enumerate(cosine_lrs(lr, steps)):
         pick = torch.randint(len(anchor), (min(batch, len(anchor)),), generator=gen)
         cols = torch.randint(negative.shape[1], (len(pick), negatives_per_step), generator=gen)
         neg = torch.gather(negative[pick], 1, cols)
@@ -131,10 +131,9 @@ def _optimize(triplets, dim, steps, batch, negatives_per_step, lr, tau, seed, pr
         f_pool = model(pool[used])
         f_pos = model(positive[pick])
         loss = info_nce(f_pool[remap[anchor[pick]]], f_pos, f_pool[remap[neg]], tau=tau)
-        opt.zero_grad(set_to_none=True)
+        opt.zero_grad()
         loss.backward()
-        opt.step()
-        sched.step()
+        opt.step(step_lr)
         value = float(loss.detach())
         result.losses.append(value)
         if progress is not None:

@@ -45,7 +45,8 @@ class Drawing:
     legend : dict
         What the page's legend and the PNG's caption say: ``title``, ``hulls``,
         ``max_concavity``, ``seconds``, ``features``, ``modality``, ``points`` and
-        ``points_total`` (drawn and given), ``removed``; ``None`` where unknown.
+        ``points_total`` (drawn and given), ``removed``, ``noise`` (a scan's or splat's points
+        in no hull); ``None`` where unknown.
     up : str
         The axis that points up, one of :data:`UP_AXES`.
     up_exact : (3,) float64, optional
@@ -154,6 +155,7 @@ def _legend_of(x) -> dict[str, Any]:
         legend["max_concavity"] = float(x.max_concavity) if len(x.hulls) else None
         legend["seconds"] = float(x.timings.get("total")) if "total" in x.timings else None
         legend["features"] = x.params.get("features")
+        legend["noise"] = cloud.info.get("noise_points") or None
     return legend
 
 

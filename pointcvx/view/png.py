@@ -323,6 +323,8 @@ def caption_parts(legend: dict) -> list[str]:
         parts.append(f"{total:,} points" if shown == total else f"{shown:,} of {total:,} points")
     if legend.get("removed"):
         parts.append(f"{legend['removed']:,} removed (grey)")
+    if legend.get("noise"):
+        parts.append(f"{legend['noise']:,} noise")
     return [str(p) for p in parts if p]
 
 

@@ -233,6 +233,7 @@
     rows.push(["points", L.points === L.points_total ? L.points.toLocaleString()
                : L.points.toLocaleString() + " of " + L.points_total.toLocaleString()]);
     if (L.removed) rows.push(["removed", L.removed.toLocaleString() + " (grey)"]);
+    if (L.noise) rows.push(["noise", L.noise.toLocaleString() + " points in no hull"]);
     var table = document.getElementById("stats");
     rows.forEach(function (r) {
       var tr = document.createElement("tr"), a = document.createElement("td"), b = document.createElement("td");
