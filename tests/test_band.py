@@ -36,10 +36,10 @@ def test_a_noisy_sphere_gets_a_thin_band_at_the_same_radius():
 
 def test_moves_are_capped_and_degenerate_input_is_returned_whole():
     pts, nrm, _ = sphere(2000, 0.0)
-    cube = np.vstack([pts, [[0.0, 0.0, 3.0]]])  # a far outlier keeps its place within the cap
+    cloud = np.vstack([pts, [[0.0, 0.0, 3.0]]])  # a far outlier keeps its place within the cap
     normals = np.vstack([nrm, [[0.0, 0.0, 1.0]]])
-    flat = flatten_band(cube, normals, limit=0.05)
-    assert np.abs(flat - cube).max() <= 0.05 + 1e-12
+    flat = flatten_band(cloud, normals, limit=0.05)
+    assert np.abs(flat - cloud).max() <= 0.05 + 1e-12
     assert np.allclose(flatten_band(pts[:2], nrm[:2]), pts[:2])
     np.testing.assert_allclose(flatten_band(pts, nrm), flatten_band(pts, nrm))  # deterministic
 

@@ -100,6 +100,8 @@ def summarize(rows: list[dict]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from pointcvx.options import BAND_MODES
+
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("folder")
     ap.add_argument("-o", "--output", required=True, help="CSV to write")
@@ -115,7 +117,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--subsurface", type=float, default=None,
                     help="decompose(subsurface=...): depth below which points leave the measure")
-    ap.add_argument("--band", default="auto", choices=("auto", "on", "off"),
+    ap.add_argument("--band", default="auto", choices=BAND_MODES,
                     help="decompose(band=...): points moved to the middle of their surface band")
     ap.add_argument("--truth", default=None,
                     help="folder of the true meshes (same stem, any mesh format): score against them")

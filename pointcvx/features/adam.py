@@ -4,7 +4,7 @@
 of every process that optimises one shape's field, more than the fit of a small shape. These
 are the same updates as ``torch.optim.Adam`` (its single-tensor CPU path: no weight decay, no
 amsgrad) under ``torch.optim.lr_scheduler.CosineAnnealingLR`` (``eta_min=0``), operation for
-operation, so the result is bit-identical (``tests/test_field.py`` compares the two).
+operation, so the result is bit-identical (``tests/test_features.py`` compares the two).
 """
 
 from __future__ import annotations
