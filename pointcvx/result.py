@@ -311,6 +311,7 @@ def cut_decomposition(decomposer, cloud: OrientedCloud, params: dict, timings: d
     """Cut ``decomposer``'s tree (a :class:`~pointcvx.decomposition.tree.Decomposer`) at
     ``params`` (threshold, max_hulls, merge) into a result; ``progress(stage, done, total)``."""
     from .decomposition.hull import convex_hull
+    from .decomposition.seams import seam_parts
 
     timings = dict(timings)
     start = timings.pop("_start", None)
@@ -341,11 +342,15 @@ def cut_decomposition(decomposer, cloud: OrientedCloud, params: dict, timings: d
     timings["merge"] = time.perf_counter() - t
     t = time.perf_counter()
     labels = np.full(len(cloud), -1, dtype=np.int64)  # -1: noise, in no hull (leaf_parts)
+    for i, idx in enumerate(parts):
+        labels[idx] = i
     hulls = []
     back = cloud.normalization
-    for i, (idx, conc) in enumerate(zip(parts, concavity, strict=True)):
-        labels[idx] = i
-        h = convex_hull(cloud.points[idx])
+    # Each hull also takes its neighbours' points along the cut, so hulls overlap there
+    # instead of leaving a gap (decomposition.seams).
+    spanned = seam_parts(cloud.points, labels, decomposer.spacing)
+    for idx, span, conc in zip(parts, spanned, concavity, strict=True):
+        h = convex_hull(cloud.points[span])
         hulls.append(ConvexHull(back.inverse(h.vertices), h.faces.astype(np.int64), float(conc),
                                 int(len(idx))))
     timings["hulls"] = time.perf_counter() - t

@@ -2,7 +2,8 @@
 
     python tools/eval_dataset.py ../shared/data/vhacd61 -o docs/results/vhacd61.csv \
         [--threshold 0.1] [--max-hulls 64] [--jobs 2] [--limit N] [--split auto] \
-        [--features optimize|model|auto] [--model CKPT] [--subsurface 0.05] [--band auto|on|off]
+        [--features optimize|model|auto] [--model CKPT] [--subsurface 0.05] [--band auto|on|off] \
+        [--open-seams]
 
 Each shape runs in its own worker process (``--jobs`` at a time). For each shape: the time of
 ``pointcvx.decompose`` (features + splitting + merge + hulls) and the metrics of
@@ -12,8 +13,10 @@ and CAD parts are scored against their surface; splats and point clouds, which h
 surface, with ``pointcvx.evaluate.evaluate_points`` (reconstruction and coverage against the
 loaded points; concavity is then the decomposer's own estimate, ``internal_max``), unless
 ``--truth DIR`` holds the true mesh of each input (same stem; ``tools/synthetic_splats.py``):
-then every input is scored against its true mesh. Writes one CSV row per shape and prints a
-markdown summary (means and medians).
+then every input is scored against its true mesh. With ``--open-seams`` the same decomposition
+is also scored with the hulls of each part's own points alone (``open_*`` columns), the hulls
+before ``pointcvx.decomposition.seams`` closed the gaps along the cuts. Writes one CSV row per
+shape and prints a markdown summary (means and medians).
 """
 
 from __future__ import annotations
@@ -36,7 +39,8 @@ def shape_names(files: list[str]) -> dict[str, str]:
     return {f: (Path(f).name if stems.count(s) > 1 else s) for f, s in zip(files, stems, strict=True)}
 
 
-def run_one(path: str, opts: dict, name: str | None = None, truth: str | None = None) -> dict:
+def run_one(path: str, opts: dict, name: str | None = None, truth: str | None = None,
+            open_seams: bool = False) -> dict:
     import torch
 
     torch.set_num_threads(1)
@@ -60,15 +64,25 @@ def run_one(path: str, opts: dict, name: str | None = None, truth: str | None = 
             mesh = read_mesh(path, pointcvx.detect(path).format)
         else:
             mesh = cloud.mesh  # CAD: the tessellation; splats and scans: None
-        if mesh is not None:
-            ev = evaluate(mesh, hulls)
-            row.update(concavity=round(ev["concavity"], 5), iou=round(ev["iou"], 4),
-                       eval_seconds=round(ev["seconds"], 2))
-        else:
-            ev = evaluate_points(cloud.points, hulls)
-            row.update(concavity=round(result.max_concavity, 5), outside_max=round(ev["outside_max"], 4))
-        row.update(hulls=ev["hulls"], reconstruction=round(ev["reconstruction"], 5),
-                   coverage=round(ev["coverage"], 4), internal_max=round(result.max_concavity, 5))
+        def score(hulls: list) -> dict:
+            if mesh is not None:
+                ev = evaluate(mesh, hulls)
+                out = dict(concavity=round(ev["concavity"], 5), iou=round(ev["iou"], 4),
+                           eval_seconds=round(ev["seconds"], 2))
+            else:
+                ev = evaluate_points(cloud.points, hulls)
+                out = dict(concavity=round(result.max_concavity, 5), outside_max=round(ev["outside_max"], 4))
+            return {**out, "hulls": ev["hulls"], "reconstruction": round(ev["reconstruction"], 5),
+                    "coverage": round(ev["coverage"], 4)}
+
+        row.update(score(hulls), internal_max=round(result.max_concavity, 5))
+        if open_seams:
+            from pointcvx.decomposition.hull import convex_hull
+
+            own = result.cloud.points
+            open_hulls = [result.cloud.normalization.inverse(convex_hull(own[result.labels == i]).vertices)
+                          for i in range(len(result.hulls))]
+            row.update({f"open_{k}": v for k, v in score(open_hulls).items() if k != "eval_seconds"})
     except Exception as exc:  # noqa: BLE001 - a benchmark records failures and goes on
         row["error"] = f"{type(exc).__name__}: {exc}"
     return row
@@ -91,7 +105,8 @@ def summarize(rows: list[dict]) -> str:
 
     ok = [r for r in rows if "error" not in r]
     lines = ["| metric | mean | median |", "|---|---|---|"]
-    for key in ("hulls", "concavity", "reconstruction", "iou", "coverage", "t_features", "seconds"):
+    keys = ("hulls", "concavity", "reconstruction", "iou", "coverage", "t_features", "seconds")
+    for key in keys + tuple(f"open_{k}" for k in keys[:5]):
         vals = np.array([r[key] for r in ok if key in r], dtype=float)
         if len(vals):
             lines.append(f"| {key} | {vals.mean():.4f} | {np.median(vals):.4f} |")
@@ -121,6 +136,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="decompose(band=...): points moved to the middle of their surface band")
     ap.add_argument("--truth", default=None,
                     help="folder of the true meshes (same stem, any mesh format): score against them")
+    ap.add_argument("--open-seams", action="store_true",
+                    help="also score the hulls of each part's own points alone (open_* columns)")
     args = ap.parse_args(argv)
     files = sorted(str(p) for p in Path(args.folder).iterdir()
                    if p.is_file() and p.suffix.lower() not in SKIP_SUFFIXES and not p.name.startswith("."))
@@ -134,7 +151,7 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
         names = shape_names(files)
-        futures = {pool.submit(run_one, f, opts, names[f], truths[f]): f for f in files}
+        futures = {pool.submit(run_one, f, opts, names[f], truths[f], args.open_seams): f for f in files}
         for fut in as_completed(futures):
             row = fut.result()
             rows.append(row)
