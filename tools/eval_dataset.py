@@ -64,13 +64,13 @@ def run_one(path: str, opts: dict, name: str | None = None, truth: str | None = 
             mesh = read_mesh(path, pointcvx.detect(path).format)
         else:
             mesh = cloud.mesh  # CAD: the tessellation; splats and scans: None
-        def score(hulls: list) -> dict:
+        def score(vertices: list) -> dict:
             if mesh is not None:
-                ev = evaluate(mesh, hulls)
+                ev = evaluate(mesh, vertices)
                 out = dict(concavity=round(ev["concavity"], 5), iou=round(ev["iou"], 4),
                            eval_seconds=round(ev["seconds"], 2))
             else:
-                ev = evaluate_points(cloud.points, hulls)
+                ev = evaluate_points(cloud.points, vertices)
                 out = dict(concavity=round(result.max_concavity, 5), outside_max=round(ev["outside_max"], 4))
             return {**out, "hulls": ev["hulls"], "reconstruction": round(ev["reconstruction"], 5),
                     "coverage": round(ev["coverage"], 4)}
@@ -79,8 +79,8 @@ def run_one(path: str, opts: dict, name: str | None = None, truth: str | None = 
         if open_seams:
             from pointcvx.decomposition.hull import convex_hull
 
-            own = result.cloud.points
-            open_hulls = [result.cloud.normalization.inverse(convex_hull(own[result.labels == i]).vertices)
+            points, back = result.cloud.points, result.cloud.normalization  # the hulls' frame
+            open_hulls = [back.inverse(convex_hull(points[result.labels == i]).vertices)
                           for i in range(len(result.hulls))]
             row.update({f"open_{k}": v for k, v in score(open_hulls).items() if k != "eval_seconds"})
     except Exception as exc:  # noqa: BLE001 - a benchmark records failures and goes on

@@ -4,9 +4,8 @@ The parts of a decomposition partition the points, so the hulls of two neighbour
 at their own outermost points and leave a gap about one sample spacing wide along every cut.
 The walls of that gap are boundary of the union of hulls, inside the solid: a collider with a
 crack that reaches the surface (a groove a thin object can catch in), and surface that is not
-the shape's (on synthetic splats judged against their true meshes, the gaps' walls were a third
-of the Chamfer reconstruction error: 0.0228 -> 0.0184 with the seams closed). CoACD's and
-V-HACD's pieces meet on shared cut planes and have no such gaps.
+the shape's, counted in the reconstruction error (measured in docs/captures.md, "Closed
+seams"). CoACD's and V-HACD's pieces meet on shared cut planes and have no such gaps.
 
 :func:`seam_parts` adds to each part the points of other parts within ``SEAM_SPACINGS`` times
 the cloud's median sample spacing, so neighbouring hulls overlap by about a spacing
