@@ -311,7 +311,7 @@ def cut_decomposition(decomposer, cloud: OrientedCloud, params: dict, timings: d
     """Cut ``decomposer``'s tree (a :class:`~pointcvx.decomposition.tree.Decomposer`) at
     ``params`` (threshold, max_hulls, merge) into a result; ``progress(stage, done, total)``."""
     from .decomposition.hull import convex_hull
-    from .decomposition.seams import seam_parts
+    from .decomposition.seams import seam_points
 
     timings = dict(timings)
     start = timings.pop("_start", None)
@@ -346,11 +346,11 @@ def cut_decomposition(decomposer, cloud: OrientedCloud, params: dict, timings: d
         labels[idx] = i
     hulls = []
     back = cloud.normalization
-    # Each hull also takes its neighbours' points along the cut, so hulls overlap there
+    # Each hull also reaches halfway across the cut to its neighbours, so hulls meet there
     # instead of leaving a gap (decomposition.seams).
-    spanned = seam_parts(cloud.points, labels, decomposer.spacing)
+    spanned = seam_points(cloud.points, cloud.normals, labels, decomposer.spacing)
     for idx, span, conc in zip(parts, spanned, concavity, strict=True):
-        h = convex_hull(cloud.points[span])
+        h = convex_hull(span)
         hulls.append(ConvexHull(back.inverse(h.vertices), h.faces.astype(np.int64), float(conc),
                                 int(len(idx))))
     timings["hulls"] = time.perf_counter() - t

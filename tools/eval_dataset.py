@@ -3,7 +3,7 @@
     python tools/eval_dataset.py ../shared/data/vhacd61 -o docs/results/vhacd61.csv \
         [--threshold 0.1] [--max-hulls 64] [--jobs 2] [--limit N] [--split auto] \
         [--features optimize|model|auto] [--model CKPT] [--subsurface 0.05] [--band auto|on|off] \
-        [--open-seams]
+        [--seam-variants]
 
 Each shape runs in its own worker process (``--jobs`` at a time). For each shape: the time of
 ``pointcvx.decompose`` (features + splitting + merge + hulls) and the metrics of
@@ -13,10 +13,11 @@ and CAD parts are scored against their surface; splats and point clouds, which h
 surface, with ``pointcvx.evaluate.evaluate_points`` (reconstruction and coverage against the
 loaded points; concavity is then the decomposer's own estimate, ``internal_max``), unless
 ``--truth DIR`` holds the true mesh of each input (same stem; ``tools/synthetic_splats.py``):
-then every input is scored against its true mesh. With ``--open-seams`` the same decomposition
-is also scored with the hulls of each part's own points alone (``open_*`` columns), the hulls
-before ``pointcvx.decomposition.seams`` closed the gaps along the cuts. Writes one CSV row per
-shape and prints a markdown summary (means and medians).
+then every input is scored against its true mesh. With ``--seam-variants`` the same
+decomposition is also scored with the seams along its cuts made otherwise than
+``pointcvx.decomposition.seams`` makes them (:func:`seam_variant_hulls`: ``open_*``,
+``points_*`` and ``allmid_*`` columns). Writes one CSV row per shape and prints a markdown
+summary (means and medians).
 """
 
 from __future__ import annotations
@@ -40,7 +41,7 @@ def shape_names(files: list[str]) -> dict[str, str]:
 
 
 def run_one(path: str, opts: dict, name: str | None = None, truth: str | None = None,
-            open_seams: bool = False) -> dict:
+            seam_variants: bool = False) -> dict:
     import torch
 
     torch.set_num_threads(1)
@@ -76,16 +77,40 @@ def run_one(path: str, opts: dict, name: str | None = None, truth: str | None = 
                     "coverage": round(ev["coverage"], 4)}
 
         row.update(score(hulls), internal_max=round(result.max_concavity, 5))
-        if open_seams:
-            from pointcvx.decomposition.hull import convex_hull
-
-            points, back = result.cloud.points, result.cloud.normalization  # the hulls' frame
-            open_hulls = [back.inverse(convex_hull(points[result.labels == i]).vertices)
-                          for i in range(len(result.hulls))]
-            row.update({f"open_{k}": v for k, v in score(open_hulls).items() if k != "eval_seconds"})
+        if seam_variants:
+            for prefix, vertices in seam_variant_hulls(result).items():
+                row.update({f"{prefix}_{k}": v for k, v in score(vertices).items() if k != "eval_seconds"})
     except Exception as exc:  # noqa: BLE001 - a benchmark records failures and goes on
         row["error"] = f"{type(exc).__name__}: {exc}"
     return row
+
+
+def seam_variant_hulls(result) -> dict[str, list]:
+    """The hulls of ``result``'s parts (a :class:`pointcvx.Decomposition`) with the seams made
+    otherwise than the default's midpoints across seams within one face, in the input's units:
+    ``open`` (each part's own points alone), ``points`` (its own points and the points of its
+    seam pairs' other ends, edges too) and ``allmid`` (the midpoints of every seam pair, edges
+    too); {prefix: list of (m, 3) float hull vertices}, or {} for a scene (each object's parts
+    have their own spacing)."""
+    import numpy as np
+
+    from pointcvx.decomposition.hull import convex_hull
+    from pointcvx.decomposition.seams import seam_pairs
+
+    if result._decomposer is None:  # a scene: objects decomposed apart (result.merge_parts)
+        return {}
+    cloud, labels = result.cloud, result.labels  # the hulls' frame
+    a, b = seam_pairs(cloud.points, cloud.normals, labels, result._decomposer.spacing, crease_degrees=180.0)
+    mid = 0.5 * (cloud.points[a] + cloud.points[b])
+    sets: dict[str, list] = {"open": [], "points": [], "allmid": []}
+    for i in range(len(result.hulls)):
+        own = labels == i
+        sets["open"].append(cloud.points[own])
+        across = np.union1d(b[labels[a] == i], a[labels[b] == i])
+        sets["points"].append(cloud.points[np.union1d(np.flatnonzero(own), across)])
+        sets["allmid"].append(np.vstack([cloud.points[own], mid[(labels[a] == i) | (labels[b] == i)]]))
+    back = cloud.normalization
+    return {k: [back.inverse(convex_hull(v).vertices) for v in hulls] for k, hulls in sets.items()}
 
 
 def truth_file(folder: str, path: str) -> str:
@@ -106,7 +131,8 @@ def summarize(rows: list[dict]) -> str:
     ok = [r for r in rows if "error" not in r]
     lines = ["| metric | mean | median |", "|---|---|---|"]
     keys = ("hulls", "concavity", "reconstruction", "iou", "coverage", "t_features", "seconds")
-    for key in keys + tuple(f"open_{k}" for k in keys[:5]):
+    variants = tuple(f"{p}_{k}" for p in ("open", "points", "allmid") for k in keys[:5])
+    for key in keys + variants:
         vals = np.array([r[key] for r in ok if key in r], dtype=float)
         if len(vals):
             lines.append(f"| {key} | {vals.mean():.4f} | {np.median(vals):.4f} |")
@@ -136,8 +162,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="decompose(band=...): points moved to the middle of their surface band")
     ap.add_argument("--truth", default=None,
                     help="folder of the true meshes (same stem, any mesh format): score against them")
-    ap.add_argument("--open-seams", action="store_true",
-                    help="also score the hulls of each part's own points alone (open_* columns)")
+    ap.add_argument("--seam-variants", action="store_true",
+                    help="also score the hulls with the seams open (open_* columns), closed with "
+                         "the neighbours' points (points_*) and with every midpoint (allmid_*)")
     args = ap.parse_args(argv)
     files = sorted(str(p) for p in Path(args.folder).iterdir()
                    if p.is_file() and p.suffix.lower() not in SKIP_SUFFIXES and not p.name.startswith("."))
@@ -151,7 +178,7 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     with ProcessPoolExecutor(max_workers=args.jobs) as pool:
         names = shape_names(files)
-        futures = {pool.submit(run_one, f, opts, names[f], truths[f], args.open_seams): f for f in files}
+        futures = {pool.submit(run_one, f, opts, names[f], truths[f], args.seam_variants): f for f in files}
         for fut in as_completed(futures):
             row = fut.result()
             rows.append(row)
