@@ -20,18 +20,17 @@ def _grid(h: float = 0.1) -> np.ndarray:
     return np.column_stack([x.ravel(), y.ravel(), np.zeros(x.size)])
 
 
+def _sorted_rows(a: np.ndarray) -> np.ndarray:
+    return a[np.lexsort(a.T[::-1])]
+
+
 def _brute_midpoints(pts: np.ndarray, labels: np.ndarray, radius: float) -> np.ndarray:
     """(m, 3) float: midpoints of every pair of points of two different parts (no -1) within
     ``radius``, sorted by row; the normals all agree here."""
     i, j = np.triu_indices(len(pts), 1)
     near = np.linalg.norm(pts[i] - pts[j], axis=1) <= radius
     cross = (labels[i] != labels[j]) & (labels[i] >= 0) & (labels[j] >= 0)
-    mid = 0.5 * (pts[i] + pts[j])[near & cross]
-    return mid[np.lexsort(mid.T[::-1])]
-
-
-def _sorted_rows(a: np.ndarray) -> np.ndarray:
-    return a[np.lexsort(a.T[::-1])]
+    return _sorted_rows(0.5 * (pts[i] + pts[j])[near & cross])
 
 
 def test_each_part_reaches_the_midpoints_across_the_cut_and_nothing_more():

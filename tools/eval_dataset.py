@@ -95,20 +95,20 @@ def seam_variant_hulls(result) -> dict[str, list]:
     import numpy as np
 
     from pointcvx.decomposition.hull import convex_hull
-    from pointcvx.decomposition.seams import seam_pairs
+    from pointcvx.decomposition.seams import seam_pairs, seam_points
 
     if result._decomposer is None:  # a scene: objects decomposed apart (result.merge_parts)
         return {}
     cloud, labels = result.cloud, result.labels  # the hulls' frame
-    a, b = seam_pairs(cloud.points, cloud.normals, labels, result._decomposer.spacing, crease_degrees=180.0)
-    mid = 0.5 * (cloud.points[a] + cloud.points[b])
-    sets: dict[str, list] = {"open": [], "points": [], "allmid": []}
+    spacing = result._decomposer.spacing
+    a, b = seam_pairs(cloud.points, cloud.normals, labels, spacing, crease_degrees=180.0)
+    allmid = seam_points(cloud.points, cloud.normals, labels, spacing, crease_degrees=180.0)
+    sets: dict[str, list] = {"open": [], "points": [], "allmid": allmid}
     for i in range(len(result.hulls)):
         own = labels == i
         sets["open"].append(cloud.points[own])
         across = np.union1d(b[labels[a] == i], a[labels[b] == i])
         sets["points"].append(cloud.points[np.union1d(np.flatnonzero(own), across)])
-        sets["allmid"].append(np.vstack([cloud.points[own], mid[(labels[a] == i) | (labels[b] == i)]]))
     back = cloud.normalization
     return {k: [back.inverse(convex_hull(v).vertices) for v in hulls] for k, hulls in sets.items()}
 

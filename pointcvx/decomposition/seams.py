@@ -28,8 +28,8 @@ SEAM_SPACINGS = 1.5  # 1.0 left most gaps open (a spacing is a median); 2.5 rais
 SEAM_CREASE_DEGREES = 60.0  # pairs whose normals differ by more straddle an edge
 
 
-def seam_points(points: np.ndarray, normals: np.ndarray, labels: np.ndarray,
-                spacing: float) -> list[np.ndarray]:
+def seam_points(points: np.ndarray, normals: np.ndarray, labels: np.ndarray, spacing: float,
+                crease_degrees: float = SEAM_CREASE_DEGREES) -> list[np.ndarray]:
     """The points of each part's hull, seams closed.
 
     Parameters
@@ -43,8 +43,10 @@ def seam_points(points: np.ndarray, normals: np.ndarray, labels: np.ndarray,
         hull takes and no seam pairs.
     spacing : float
         The median nearest-neighbour distance of the points; two points of different parts
-        within ``SEAM_SPACINGS * spacing`` of each other, normals within
-        ``SEAM_CREASE_DEGREES``, put their midpoint into both parts' hulls.
+        within ``SEAM_SPACINGS * spacing`` of each other, normals within ``crease_degrees``,
+        put their midpoint into both parts' hulls.
+    crease_degrees : float
+        Pairs whose normals differ by more are left apart (180: every pair).
 
     Returns
     -------
@@ -57,7 +59,7 @@ def seam_points(points: np.ndarray, normals: np.ndarray, labels: np.ndarray,
     own = [points[labels == i] for i in range(k)]
     if k < 2 or not spacing > 0:
         return own
-    a, b = seam_pairs(points, np.asarray(normals, dtype=np.float64), labels, spacing)
+    a, b = seam_pairs(points, np.asarray(normals, dtype=np.float64), labels, spacing, crease_degrees)
     mid = 0.5 * (points[a] + points[b])
     # Each pair's midpoint goes to both its parts: (part, midpoint) rows grouped by part.
     part = np.concatenate([labels[a], labels[b]])
