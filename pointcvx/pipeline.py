@@ -48,6 +48,8 @@ Progress = Callable[[str, int, int], None]
 #: fewer candidates each cover its surface better than the paper's 1024 x 1024 (docs/model.md).
 SINGLE_SHAPE_TRIPLETS = {"pool_size": 8192, "n_anchors": 4096, "n_candidates": 256,
                          "n_hard": 64, "n_uniform": 64}
+#: Peak learning rate of per-shape optimisation (cosine decay over its ``steps``).
+OPTIMIZE_LR = 3e-3
 
 #: A ``subsurface`` depth that suits splats with a sub-surface layer (normalised frame: half the
 #: default threshold).
@@ -118,9 +120,9 @@ def preload(features: str = "auto", model: str | os.PathLike | None = None) -> N
     process (``pointcvx batch`` and ``pointcvx bench`` workers) does once before its first shape."""
     import importlib
 
-    uses = {"optimize": ("pointcvx.features.field",), "model": ("pointcvx.model.source",),
-            "fast": ("pointcvx.features.fast",),
-            "auto": ("pointcvx.features.field", "pointcvx.model.source")}[features]
+    field = ("pointcvx.features.field",)
+    uses = {"optimize": field, "fast": field, "model": ("pointcvx.model.source",),
+            "auto": field + ("pointcvx.model.source",)}[features]
     for name in LAZY_MODULES + uses:
         with contextlib.suppress(ImportError):
             importlib.import_module(name)
@@ -134,9 +136,11 @@ def compute_features(cloud: OrientedCloud, solid, *, method: str = "auto", seed:
     """Return (feature source, (n, k) float32 features of ``cloud.points``).
 
     ``method="model"`` runs the feed-forward network from ``model`` (a checkpoint written by
-    ``pointcvx train``), or the bundled one; "fast" fits the per-shape field of "optimize" with
-    the settings of :mod:`pointcvx.features.fast` (in numpy, no torch; ``steps`` is for
-    "optimize" only); "auto" picks by the cloud's modality (:func:`resolve_features`).
+    ``pointcvx train``), or the bundled one. "optimize" fits a per-shape field
+    (:mod:`pointcvx.features.field`, numpy, no torch) to the shape's convex pairs
+    (:data:`SINGLE_SHAPE_TRIPLETS`) in ``steps`` Adam steps; "fast" fits the same field in
+    fewer steps on fewer pairs (the settings of :mod:`pointcvx.features.field`; ``steps`` is for
+    "optimize" only). "auto" picks by the cloud's modality (:func:`resolve_features`).
     """
     method = resolve_features(method, cloud.modality, model)
     if method == "model":
@@ -145,24 +149,17 @@ def compute_features(cloud: OrientedCloud, solid, *, method: str = "auto", seed:
         net = load_cached_model(model)
         source = ModelFeatureSource(net, cloud.points, cloud.normals, views=views)
         return source, source.features(cloud.points)
+    from .features import field
+
     if method == "fast":
-        from .features import fast
-
-        total = fast.FAST_STEPS
-        sample = functools.partial(fast.sample_fast_triplets, **fast.FAST_TRIPLETS)
-        fit = functools.partial(fast.fit_fast_field, steps=total, lr=fast.FAST_LR)
+        total, lr, triplet_kw = field.FAST_STEPS, field.FAST_LR, field.FAST_TRIPLETS
     else:
-        from .features import sample_triplets
-        from .features.field import optimize_field
-
-        total = steps
-        sample = functools.partial(sample_triplets, **SINGLE_SHAPE_TRIPLETS)
-        fit = functools.partial(optimize_field, steps=steps)
+        total, lr, triplet_kw = steps, OPTIMIZE_LR, SINGLE_SHAPE_TRIPLETS
     if progress is not None:  # step 0: the convex pairs (a time limit is checked here too)
         progress("features", 0, total)
-    triplets = sample(solid, cloud.points, cloud.normals, seed=seed)
+    triplets = field.sample_field_triplets(solid, cloud.points, cloud.normals, seed=seed, **triplet_kw)
     report = None if progress is None else (lambda step, loss: progress("features", step + 1, total))
-    source = fit(triplets, seed=seed, progress=report)
+    source = field.fit_field(triplets, steps=total, lr=lr, seed=seed, progress=report)
     return source, source.features(cloud.points)
 
 

@@ -326,10 +326,10 @@ def cut_decomposition(decomposer, cloud: OrientedCloud, params: dict, timings: d
     t = time.perf_counter()
     report = None if progress is None else (
         lambda n, worst: progress("split", n, params["max_hulls"]))
-    if splits:
-        # The splits' clustering loads scikit-learn's OpenMP runtime; threadpoolctl limits only
-        # the runtimes already loaded, so load it before the limit (without torch loaded first,
-        # k-means otherwise ran on every core: 12-14 s instead of 2 s on chair.off, 2 cores).
+    if splits and decomposer.method == "ward":
+        # Ward clustering loads scikit-learn's OpenMP runtime; threadpoolctl limits only the
+        # runtimes already loaded, so load it before the limit (scikit-learn's k-means, when the
+        # default split used it, otherwise ran on every core: 12-14 s instead of 2 s on chair.off).
         import sklearn.cluster  # noqa: F401
     with threadpool_limits(1):  # many small BLAS calls: threads only add overhead
         leaves = decomposer.cut(params["threshold"], params["max_hulls"], progress=report)

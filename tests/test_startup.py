@@ -129,3 +129,14 @@ def test_open3d_comes_without_its_plotly_drawing_until_that_is_called(tmp_path):
     names = imported("decompose", str(MUG), "-o", str(tmp_path / "mug.obj"),
                      "-q", "--features", "fast", "-n", "3000")
     assert "open3d" in names and "dash" not in names and "torch" not in names
+
+
+def test_decompose_on_a_mesh_at_default_settings_imports_no_torch_or_scikit_learn(tmp_path):
+    """The default path of a mesh (per-shape optimised features, the numpy field, and the
+    numpy two-way k-means of the split) writes its hulls without torch or scikit-learn, which
+    cost a one-shot process about 2 s to import."""
+    out = tmp_path / "mug.obj"
+    names = imported("decompose", str(MUG), "-o", str(out), "-q", "-n", "3000")
+    assert {"pointcvx.features.field", "pointcvx.decomposition.kmeans", "open3d"} <= names
+    assert not {"torch", "sklearn"} & names, sorted({"torch", "sklearn"} & names)
+    assert out.read_text().count("\no ") >= 1

@@ -1,6 +1,6 @@
 """How pointcvx's time and memory grow with the size of its input.
 
-    python tools/scaling.py SHAPE -o OUTDIR [--sizes 10000,100000,1000000] [--features model]
+    python tools/scaling.py SHAPE -o OUTDIR [--sizes 10000,100000,1000000] [--features auto]
                             [--timeout 600]
 
 From one real mesh (``SHAPE``, e.g. ``../shared/data/dev/scans/armadillo.obj``) it writes, for
@@ -108,7 +108,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("shape")
     ap.add_argument("-o", "--output", required=True, help="output folder")
     ap.add_argument("--sizes", default="10000,100000,1000000")
-    ap.add_argument("--features", default="model", choices=["model", "optimize"])
+    ap.add_argument("--features", default="auto", choices=["auto", "model", "optimize", "fast"],
+                    help="feature source (default auto: what `pointcvx decompose` picks, the model on "
+                         "splats and the per-shape fit on clouds)")
     ap.add_argument("--timeout", type=float, default=600.0)
     ap.add_argument("--full-max", type=int, default=100000,
                     help="largest size also decomposed with every point kept (default 100000)")

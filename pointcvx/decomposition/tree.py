@@ -28,6 +28,7 @@ from ..errors import InputError
 from ..options import SPLIT_METHODS
 from .concavity import GAP_SPACINGS, part_concavity, sample_spacing
 from .hull import convex_hull, hull_contains
+from .kmeans import nearest_centre, two_means
 
 log = logging.getLogger(__name__)
 
@@ -292,10 +293,7 @@ class Decomposer:
         else:
             sel = np.arange(len(indices))
         if self.method == "kmeans":
-            from sklearn.cluster import KMeans
-
-            km = KMeans(n_clusters=2, n_init=2, random_state=seed).fit(x[sel])
-            side = km.predict(x) == 1
+            side = nearest_centre(x, two_means(x[sel], seed=seed, n_init=2))
         else:
             from sklearn.cluster import AgglomerativeClustering
 

@@ -1,8 +1,8 @@
 """Convex-aware features: points -> (n, k) unit vectors, close for points that form convex pairs.
 
-Three sources implement :class:`FeatureSource`: a field optimised per shape
-(:func:`pointcvx.features.field.optimize_field`), the same field fitted fast in numpy
-(:func:`pointcvx.features.fast.fit_fast_field`, opt-in) and the feed-forward model.
+Two kinds of source implement :class:`FeatureSource`: a field fitted to the shape's own convex
+pairs (:func:`pointcvx.features.field.fit_field`, numpy: ``features="optimize"`` and, in fewer
+steps, ``"fast"``) and the feed-forward model (:mod:`pointcvx.model`, torch).
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ class FeatureSource(Protocol):
 
 
 def __getattr__(name: str):
-    """``info_nce`` (torch) on first use: the numpy feature source (``features="fast"``) and the
+    """``info_nce`` (torch) on first use: the per-shape field (:mod:`pointcvx.features.field`) and the
     triplet sampler do not need torch, which costs a process about 1.7 s to import."""
     if name == "info_nce":
         from .loss import info_nce

@@ -1,142 +1,225 @@
-"""Per-shape feature fields: a small MLP on Fourier features of xyz, optimised with the
-contrastive loss on the shape's own triplets (the paper's "single-shape optimisation")."""
+"""Per-shape feature fields in numpy: xyz -> unit features, fitted to one shape's convex pairs.
+
+A Fourier-feature ReLU MLP (sin/cos of xyz in 4 octaves, width 64, depth 3, 32 unit features)
+fitted with Adam (cosine-decayed learning rate) to the symmetric InfoNCE loss (temperature 0.3)
+on batches of 128 anchors and 64 of their negatives per step, with a hand-written backward pass
+on one BLAS thread: a process that decomposes a mesh never imports torch (about 1.5 s of a
+one-shot run). :func:`pointcvx.pipeline.compute_features` uses it two ways:
+
+- ``features="optimize"`` (the default on meshes, CAD parts and scans): 300 steps at learning
+  rate 3e-3 on :data:`pointcvx.pipeline.SINGLE_SHAPE_TRIPLETS` (256 candidates per anchor);
+- ``features="fast"`` (opt-in): 100 steps at 1e-2 on 128 candidates per anchor
+  (:data:`FAST_TRIPLETS`, :data:`FAST_STEPS`, :data:`FAST_LR`).
+
+The negatives are drawn for all anchors at once (:func:`sample_field_triplets`), from the same
+distribution as :func:`pointcvx.features.sample_triplets`. docs/benchmarks.md, "Feature
+sources", has the measurements. Deterministic for a seed.
+"""
 
 from __future__ import annotations
 
-import contextlib
-import logging
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
 
 import numpy as np
-import torch
-from torch import nn
 
-from .adam import Adam, cosine_lrs
-from .loss import info_nce
-from .pairs import Triplets
+from .pairs import Triplets, anchor_candidates
 
-log = logging.getLogger(__name__)
-
-
-class FourierMLP(nn.Module):
-    """xyz (n, 3) -> unit features (n, dim) through sin/cos encodings and a ReLU MLP."""
-
-    def __init__(self, dim: int = 32, n_freqs: int = 4, width: int = 64, depth: int = 3):
-        super().__init__()
-        self.register_buffer("freqs", (2.0 ** torch.arange(n_freqs)) * math.pi)
-        layers: list[nn.Module] = []
-        d_in = 3 + 6 * n_freqs
-        for _ in range(depth):
-            layers += [nn.Linear(d_in, width), nn.ReLU()]
-            d_in = width
-        layers.append(nn.Linear(d_in, dim))
-        self.net = nn.Sequential(*layers)
-
-    def encode(self, xyz: torch.Tensor) -> torch.Tensor:
-        ang = xyz[..., None] * self.freqs  # (n, 3, f)
-        return torch.cat([xyz, ang.sin().flatten(-2), ang.cos().flatten(-2)], dim=-1)
-
-    def forward(self, xyz: torch.Tensor) -> torch.Tensor:
-        return nn.functional.normalize(self.net(self.encode(xyz)), dim=-1)
+#: Triplet settings of the fast source (:func:`sample_field_triplets`).
+FAST_TRIPLETS = {"pool_size": 8192, "n_anchors": 4096, "n_candidates": 128,
+                 "n_hard": 64, "n_uniform": 64}
+#: Fit settings of the fast source (:func:`fit_field`).
+FAST_STEPS = 100
+FAST_LR = 1e-2
 
 
-@dataclass
-class OptimizedField:
-    """A :class:`~pointcvx.features.FeatureSource` fitted to one shape.
+def _draw_columns(rng: np.random.Generator, weights: np.ndarray, k: int) -> np.ndarray:
+    """(a, k) column indices, drawn with replacement in each row of (a, c) non-negative
+    ``weights`` (each row with a positive sum) with probability proportional to its weights."""
+    a, c = weights.shape
+    cum = np.cumsum(weights, axis=1)
+    cum /= cum[:, -1:]
+    rows = np.arange(a)[:, None]
+    flat = (cum + rows).ravel()  # row i's cumulative weights live in (i, i + 1]
+    u = rng.random((a, k)) + rows
+    cols = np.searchsorted(flat, u.ravel(), side="right").reshape(a, k) - rows * c
+    return np.clip(cols, 0, c - 1)
+
+
+def sample_field_triplets(solid, points: np.ndarray, normals: np.ndarray, *,
+                          pool_size: int | None = 8192, n_anchors: int = 4096, n_candidates: int = 128,
+                          n_hard: int = 64, n_uniform: int = 64, power: float = 1.0,
+                          seed: int = 0) -> Triplets:
+    """Anchors, positives and hard/uniform negatives as
+    :func:`pointcvx.features.sample_triplets` defines them (same pool, anchors, rays and
+    weights), with the negatives drawn for all anchors in one vectorised pass (the draws, not
+    their distribution, differ). ``points`` (n, 3) float and ``normals`` (n, 3) float are the
+    surface samples of ``solid``; negative has ``n_uniform + n_hard`` columns. Seeded."""
+    rng = np.random.default_rng(seed)
+    points, anchor, pos, cand, neg = anchor_candidates(solid, points, normals, rng, n_anchors=n_anchors,
+                                                       n_candidates=n_candidates, pool_size=pool_size)
+    parts = [np.zeros((len(anchor), 0), np.int64)]
+    if len(anchor) and n_uniform:
+        parts.append(np.take_along_axis(cand, _draw_columns(rng, neg.astype(np.float64), n_uniform), 1))
+    if len(anchor) and n_hard:
+        d = np.linalg.norm(points[cand] - pos[:, None, :], axis=2)
+        w = np.where(neg, 1.0 / (d + 1e-3) ** power, 0.0)
+        parts.append(np.take_along_axis(cand, _draw_columns(rng, w, n_hard), 1))
+    return Triplets(points, anchor, pos, np.concatenate(parts, axis=1).astype(np.int64))
+
+
+class FourierField:
+    """A :class:`~pointcvx.features.FeatureSource`: xyz (n, 3) -> (n, dim) unit features through
+    sin/cos encodings and a ReLU MLP.
 
     Attributes
     ----------
-    model : FourierMLP
-    losses : list of float, the loss at each optimisation step.
+    params : list of ((d_in, d_out) float32, (d_out,) float32), the layers' weights and biases.
+    freqs : (n_freqs,) float32
+    losses : list of float, the loss at each fitting step.
     """
 
-    model: FourierMLP
-    losses: list = field(default_factory=list)
-    name: str = "optimize"
+    name = "field"
+
+    def __init__(self, params: list, freqs: np.ndarray):
+        self.params = params
+        self.freqs = freqs
+        self.losses: list[float] = []
+
+    @classmethod
+    def initial(cls, rng: np.random.Generator, dim: int = 32, n_freqs: int = 4, width: int = 64,
+                depth: int = 3) -> FourierField:
+        """A field with layers initialised as torch's ``nn.Linear`` does (uniform in
+        +-1/sqrt(fan_in)), drawn from ``rng``: ``depth`` hidden layers of ``width``, ``dim``
+        output features, ``n_freqs`` octaves of sin/cos per coordinate."""
+        params, d_in = [], 3 + 6 * n_freqs
+        for d_out in [width] * depth + [dim]:
+            bound = 1.0 / math.sqrt(d_in)
+            params.append((rng.uniform(-bound, bound, (d_in, d_out)).astype(np.float32),
+                           rng.uniform(-bound, bound, d_out).astype(np.float32)))
+            d_in = d_out
+        return cls(params, ((2.0 ** np.arange(n_freqs)) * np.pi).astype(np.float32))
 
     @property
     def dim(self) -> int:
-        return self.model.net[-1].out_features
+        """Number of features per point."""
+        return self.params[-1][0].shape[1]
 
-    @torch.no_grad()
+    def _encode(self, xyz: np.ndarray) -> np.ndarray:
+        """(n, 3) points -> (n, 3 + 6 * n_freqs) float32: xyz, then sin and cos of each octave."""
+        x = np.asarray(xyz, dtype=np.float32).reshape(-1, 3)
+        ang = (x[:, :, None] * self.freqs).reshape(len(x), -1)
+        return np.concatenate([x, np.sin(ang), np.cos(ang)], axis=1)
+
+    def _forward(self, xyz: np.ndarray):
+        """(n, dim) unit features of (n, 3) points, the layers' inputs and outputs (list of
+        (n, d) float32: the encoding, then each layer after its ReLU) and the (n, 1) norms of the
+        raw outputs, the last two kept for :meth:`_backward`."""
+        h = self._encode(xyz)
+        acts = [h]
+        for i, (w, b) in enumerate(self.params):
+            h = h @ w + b
+            if i < len(self.params) - 1:
+                np.maximum(h, 0, out=h)
+            acts.append(h)
+        norm = np.maximum(np.linalg.norm(h, axis=1, keepdims=True), 1e-12)
+        return h / norm, acts, norm
+
+    def _backward(self, grad: np.ndarray, feats: np.ndarray, acts: list, norm: np.ndarray) -> list:
+        """Gradients of the layers' (weights, biases), as :attr:`params` holds them, from the
+        (n, dim) gradient w.r.t. the (n, dim) unit features of :meth:`_forward`."""
+        g = (grad - feats * (feats * grad).sum(1, keepdims=True)) / norm
+        grads = [None] * len(self.params)
+        for i in range(len(self.params) - 1, -1, -1):
+            grads[i] = (acts[i].T @ g, g.sum(0))
+            if i > 0:
+                g = (g @ self.params[i][0].T) * (acts[i] > 0)
+        return grads
+
     def features(self, points: np.ndarray, chunk: int = 65536) -> np.ndarray:
         """(n, 3) float points (normalised frame) -> (n, dim) float32 unit features."""
-        self.model.eval()
-        with torch_threads(1):
-            out = [
-                self.model(torch.as_tensor(points[s : s + chunk], dtype=torch.float32)).numpy()
-                for s in range(0, len(points), chunk)
-            ]
-        return np.concatenate(out) if out else np.zeros((0, self.dim), np.float32)
+        from threadpoolctl import threadpool_limits
+
+        points = np.asarray(points).reshape(-1, 3)
+        with threadpool_limits(1):
+            out = [self._forward(points[s : s + chunk])[0] for s in range(0, len(points), chunk)]
+        return np.concatenate(out).astype(np.float32) if out else np.zeros((0, self.dim), np.float32)
 
 
-@contextlib.contextmanager
-def torch_threads(n: int):
-    """Run torch ops with ``n`` intra-op threads (small MLPs are fastest, and immune to
-    oversubscription on busy machines, with one)."""
-    old = torch.get_num_threads()
-    torch.set_num_threads(n)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(old)
+def info_nce_grad(anchor: np.ndarray, positive: np.ndarray, negatives: np.ndarray, tau: float):
+    """The symmetric InfoNCE of :func:`pointcvx.features.loss.info_nce` on unit features and its
+    gradients, for (a, k) anchors and positives and (a, m, k) negatives at temperature ``tau``:
+    (loss, d/d anchor (a, k), d/d positive (a, k), d/d negatives (a, m, k))."""
+    a = len(anchor)
+    ap = (anchor * positive).sum(1)
+    loss = 0.0
+    g_anchor, g_positive = np.zeros_like(anchor), np.zeros_like(positive)
+    g_neg = np.zeros_like(negatives)
+    for query, g_query in ((anchor, g_anchor), (positive, g_positive)):
+        logits = np.concatenate([ap[:, None], np.einsum("ak,amk->am", query, negatives)], 1) / tau
+        top = logits.max(1, keepdims=True)
+        e = np.exp(logits - top)
+        z = e.sum(1, keepdims=True)
+        loss += float((np.log(z[:, 0]) + top[:, 0] - logits[:, 0]).mean())
+        s = e / z
+        s[:, 0] -= 1.0
+        s *= 0.5 / (a * tau)  # d(0.5 * mean cross-entropy) / d(similarity)
+        g_anchor += s[:, :1] * positive
+        g_positive += s[:, :1] * anchor
+        g_query += np.einsum("am,amk->ak", s[:, 1:], negatives)
+        g_neg += s[:, 1:, None] * query[:, None, :]
+    return 0.5 * loss, g_anchor, g_positive, g_neg
 
 
-def optimize_field(
-    triplets: Triplets,
-    *,
-    dim: int = 32,
-    steps: int = 300,
-    batch: int = 128,
-    negatives_per_step: int = 64,
-    lr: float = 3e-3,
-    tau: float = 0.3,
-    seed: int = 0,
-    progress: Callable[[int, float], None] | None = None,
-) -> OptimizedField:
-    """Fit a :class:`FourierMLP` to ``triplets`` with Adam and the symmetric InfoNCE loss.
+def fit_field(triplets: Triplets, *, dim: int = 32, steps: int = FAST_STEPS, batch: int = 128,
+              negatives_per_step: int = 64, lr: float = FAST_LR, tau: float = 0.3, seed: int = 0,
+              betas: tuple = (0.9, 0.999), eps: float = 1e-8,
+              progress: Callable[[int, float], None] | None = None) -> FourierField:
+    """Fit a :class:`FourierField` to ``triplets`` with Adam (cosine-decayed learning rate) and the
+    symmetric InfoNCE loss (:func:`pointcvx.features.loss.info_nce`): each step
+    draws ``batch`` anchors and ``negatives_per_step`` of each one's negatives, and evaluates
+    the field once on the pool points involved. ``progress(step, loss)`` after each step.
+    One BLAS thread; deterministic for a seed."""
+    from threadpoolctl import threadpool_limits
 
-    Each step draws ``batch`` anchors and, for each, ``negatives_per_step`` of its negatives (the
-    hard and uniform ones in their sampled proportion); features of the pool points involved are
-    computed once per step and gathered, so a step costs a few thousand MLP evaluations.
-    ``progress(step, loss)`` is called after each step. Deterministic for a given seed.
-    """
-    with torch_threads(1):
-        return _optimize(triplets, dim, steps, batch, negatives_per_step, lr, tau, seed, progress)
-
-
-def _optimize(triplets, dim, steps, batch, negatives_per_step, lr, tau, seed, progress):
-    torch.manual_seed(seed)
-    model = FourierMLP(dim=dim)
-    result = OptimizedField(model)
-    if len(triplets) == 0:  # convex shape: nothing to separate
-        log.debug("no triplets: the field stays at its initialisation")
-        return result
-    gen = torch.Generator().manual_seed(seed)
-    pool = torch.as_tensor(triplets.pool, dtype=torch.float32)
-    anchor = torch.as_tensor(triplets.anchor)
-    positive = torch.as_tensor(triplets.positive, dtype=torch.float32)
-    negative = torch.as_tensor(triplets.negative)
-    opt = Adam(model.parameters())  # torch.optim.Adam's updates without its torch._dynamo import
-    model.train()
-    for step, step_lr in enumerate(cosine_lrs(lr, steps)):
-        pick = torch.randint(len(anchor), (min(batch, len(anchor)),), generator=gen)
-        cols = torch.randint(negative.shape[1], (len(pick), negatives_per_step), generator=gen)
-        neg = torch.gather(negative[pick], 1, cols)
-        used = torch.unique(torch.cat([anchor[pick], neg.flatten()]))
-        remap = torch.full((len(pool),), -1, dtype=torch.long)
-        remap[used] = torch.arange(len(used))
-        f_pool = model(pool[used])
-        f_pos = model(positive[pick])
-        loss = info_nce(f_pool[remap[anchor[pick]]], f_pos, f_pool[remap[neg]], tau=tau)
-        opt.zero_grad()
-        loss.backward()
-        opt.step(step_lr)
-        value = float(loss.detach())
-        result.losses.append(value)
-        if progress is not None:
-            progress(step, value)
-    model.eval()
-    return result
+    rng = np.random.default_rng(seed)
+    field = FourierField.initial(rng, dim=dim)
+    if len(triplets) == 0 or steps <= 0:  # convex shape: nothing to separate
+        return field
+    pool = np.asarray(triplets.pool, dtype=np.float32)
+    anchor = np.asarray(triplets.anchor)
+    positive = np.asarray(triplets.positive, dtype=np.float32)
+    negative = np.asarray(triplets.negative)
+    moments = [[(np.zeros_like(p), np.zeros_like(p)) for p in layer] for layer in field.params]
+    b1, b2 = betas
+    k = field.dim
+    with threadpool_limits(1):
+        for step in range(steps):
+            rate = lr * 0.5 * (1.0 + math.cos(math.pi * step / steps))
+            pick = rng.integers(0, len(anchor), min(batch, len(anchor)))
+            cols = rng.integers(0, negative.shape[1], (len(pick), negatives_per_step))
+            neg = np.take_along_axis(negative[pick], cols, 1)
+            used, inv = np.unique(np.concatenate([anchor[pick], neg.ravel()]), return_inverse=True)
+            a_idx, n_idx = inv[: len(pick)], inv[len(pick) :].reshape(neg.shape)
+            feats, acts, norm = field._forward(np.concatenate([pool[used], positive[pick]]))
+            f_pool, f_pos = feats[: len(used)], feats[len(used) :]
+            loss, g_a, g_p, g_n = info_nce_grad(f_pool[a_idx], f_pos, f_pool[n_idx], tau)
+            # scatter the anchors' and negatives' gradients onto the pool points they came from
+            rows = np.concatenate([a_idx, n_idx.ravel()])
+            vals = np.concatenate([g_a, g_n.reshape(-1, k)])
+            flat = (rows[:, None] * k + np.arange(k)).ravel()
+            g_pool = np.bincount(flat, weights=vals.ravel(), minlength=len(used) * k)
+            grad = np.concatenate([g_pool.reshape(len(used), k).astype(np.float32), g_p])
+            t = step + 1
+            grads = field._backward(grad, feats, acts, norm)
+            for layer, layer_grads, layer_moments in zip(field.params, grads, moments, strict=True):
+                for p, g, (m, v) in zip(layer, layer_grads, layer_moments, strict=True):
+                    m *= b1
+                    m += (1 - b1) * g
+                    v *= b2
+                    v += (1 - b2) * g * g
+                    p -= (rate / (1 - b1**t)) * m / (np.sqrt(v / (1 - b2**t)) + eps)
+            field.losses.append(loss)
+            if progress is not None:
+                progress(step, loss)
+    return field

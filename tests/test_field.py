@@ -1,5 +1,6 @@
-"""The fast per-shape feature source (``features="fast"``, pointcvx.features.fast): its hand-written
-backward pass, its triplets, its fit, decompositions with it, and that it never imports torch."""
+"""The per-shape feature field in numpy (pointcvx.features.field, ``features="optimize"`` and
+``"fast"``): its hand-written backward pass, its triplets, its fit, decompositions with the fast
+settings, and that it never imports torch."""
 
 from __future__ import annotations
 
@@ -13,13 +14,13 @@ from shapes import l_block, u_block
 import pointcvx
 from conftest import DATA, ROOT
 from pointcvx.evaluate import evaluate
-from pointcvx.features.fast import (
+from pointcvx.features.field import (
     FAST_STEPS,
-    FastField,
+    FourierField,
     _draw_columns,
-    fit_fast_field,
+    fit_field,
     info_nce_grad,
-    sample_fast_triplets,
+    sample_field_triplets,
 )
 from pointcvx.features.pairs import nonconvex_mask
 from pointcvx.io.mesh import cloud_from_mesh
@@ -38,7 +39,7 @@ def lshape():
 def _small_problem(dtype=np.float32):
     """A field, 60 points and index triplets into them (8 anchors, 8 positives, 5 negatives each)."""
     rng = np.random.default_rng(0)
-    field = FastField.initial(rng)
+    field = FourierField.initial(rng)
     field.params = [tuple(p.astype(dtype) for p in layer) for layer in field.params]
     x = rng.uniform(-1, 1, (60, 3)).astype(np.float32)
     anchor, positive, negative = rng.integers(0, 40, 8), np.arange(40, 48), rng.integers(0, 40, (8, 5))
@@ -108,8 +109,8 @@ def test_weighted_draws_follow_the_weights():
 def test_triplets_are_real_and_seeded(lshape):
     cloud, solid = lshape
     kw = dict(pool_size=4000, n_anchors=256, n_candidates=128, n_hard=32, n_uniform=32, seed=3)
-    a = sample_fast_triplets(solid, cloud.points, cloud.normals, **kw)
-    b = sample_fast_triplets(solid, cloud.points, cloud.normals, **kw)
+    a = sample_field_triplets(solid, cloud.points, cloud.normals, **kw)
+    b = sample_field_triplets(solid, cloud.points, cloud.normals, **kw)
     np.testing.assert_array_equal(a.negative, b.negative)
     np.testing.assert_array_equal(a.positive, b.positive)
     assert a.negative.shape == (len(a), 64) and 0 < len(a) <= 256 and len(a.pool) == 4000
@@ -120,15 +121,15 @@ def test_triplets_are_real_and_seeded(lshape):
     assert mask.all()  # every negative is a non-convex pair
     # Hard negatives (1/d^2 weights) lie nearer the positive than uniform ones, as with
     # sample_triplets (whose draws these vectorise).
-    hard = sample_fast_triplets(solid, cloud.points, cloud.normals, power=2.0, **kw)
+    hard = sample_field_triplets(solid, cloud.points, cloud.normals, power=2.0, **kw)
     d = np.linalg.norm(hard.pool[hard.negative] - hard.positive[:, None], axis=2)
     assert d[:, 32:].mean() < 0.95 * d[:, :32].mean()
 
 
 def test_fit_lowers_the_loss_separates_the_l_and_is_deterministic(lshape):
     cloud, solid = lshape
-    t = sample_fast_triplets(solid, cloud.points, cloud.normals, n_anchors=1024, seed=0)
-    f1, f2 = fit_fast_field(t, seed=5), fit_fast_field(t, seed=5)
+    t = sample_field_triplets(solid, cloud.points, cloud.normals, n_anchors=1024, seed=0)
+    f1, f2 = fit_field(t, seed=5), fit_field(t, seed=5)
     assert len(f1.losses) == FAST_STEPS and np.mean(f1.losses[-10:]) < 0.7 * np.mean(f1.losses[:10])
     assert f1.losses == f2.losses
     feats = f1.features(cloud.points)
@@ -178,7 +179,7 @@ def test_cli_fast_never_imports_torch(tmp_path):
     assert proc.returncode == 0, proc.stderr[-2000:]
     imported = {line.rsplit("|", 1)[-1].strip() for line in proc.stderr.splitlines()
                 if line.startswith("import time:")}
-    assert "pointcvx.features.fast" in imported and "numpy" in imported
+    assert "pointcvx.features.field" in imported and "numpy" in imported
     torch = sorted(m for m in imported if m == "torch" or m.startswith("torch."))
     assert not torch, torch
     assert out.stat().st_size > 0 and out.read_text().count("\no ") >= 1
