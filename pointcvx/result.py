@@ -318,7 +318,12 @@ def cut_decomposition(decomposer, cloud: OrientedCloud, params: dict, timings: d
     # The features are computed once per decomposer, when a cut first splits; every cut that
     # splits reports their time, whichever computed them, and a cut that does not reports 0.
     timings["features"] = 0.0
-    splits = decomposer.will_split(params["threshold"], params["max_hulls"])
+    # A cloud too sparse to resolve the threshold is cut at what it resolves, and says so.
+    threshold = decomposer.stop_threshold(params["threshold"])
+    params = {k: v for k, v in params.items() if k != "resolved_threshold"}
+    if threshold > params["threshold"]:
+        params["resolved_threshold"] = round(threshold, 6)
+    splits = decomposer.will_split(threshold, params["max_hulls"])
     if splits:
         # Outside the single-thread limit below: the model's forward pass uses every core.
         decomposer.load_features(progress)
@@ -332,13 +337,13 @@ def cut_decomposition(decomposer, cloud: OrientedCloud, params: dict, timings: d
         # default split used it, otherwise ran on every core: 12-14 s instead of 2 s on chair.off).
         import sklearn.cluster  # noqa: F401
     with threadpool_limits(1):  # many small BLAS calls: threads only add overhead
-        leaves = decomposer.cut(params["threshold"], params["max_hulls"], progress=report)
+        leaves = decomposer.cut(threshold, params["max_hulls"], progress=report)
         timings["split"] = time.perf_counter() - t
         t = time.perf_counter()
         if params["merge"]:
-            parts, concavity = decomposer.merge(leaves, params["threshold"])
+            parts, concavity = decomposer.merge(leaves, threshold)
         else:
-            parts, concavity = decomposer.leaf_parts(leaves, params["threshold"])
+            parts, concavity = decomposer.leaf_parts(leaves, threshold)
     timings["merge"] = time.perf_counter() - t
     t = time.perf_counter()
     labels = np.full(len(cloud), -1, dtype=np.int64)  # -1: noise, in no hull (leaf_parts)
@@ -385,7 +390,9 @@ def merge_parts(parts: list[Decomposition], pieces: list[np.ndarray], cloud: Ori
         objects.append({"name": f"object_{k:02d}", "hulls": list(range(first, len(hulls))),
                         "points": int(len(idx)),
                         "bounds": [pts.min(axis=0).tolist(), pts.max(axis=0).tolist()],
-                        "max_concavity": round(part.max_concavity, 6)})
+                        "max_concavity": round(part.max_concavity, 6)}
+                       | ({"resolved_threshold": part.params["resolved_threshold"]}
+                          if "resolved_threshold" in part.params else {}))
         for key, value in part.timings.items():
             if key != "total":
                 timings[key] = timings.get(key, 0.0) + value
@@ -393,6 +400,7 @@ def merge_parts(parts: list[Decomposition], pieces: list[np.ndarray], cloud: Ori
     if noise:
         cloud = cloud.replace(info={**cloud.info, "noise_points": noise})
     timings["total"] = (time.perf_counter() - start) if start is not None else sum(timings.values())
-    params = {**parts[0].params, "scene": True, "objects": len(parts)} if parts else {"scene": True}
+    params = ({k: v for k, v in parts[0].params.items() if k != "resolved_threshold"}
+              | {"scene": True, "objects": len(parts)}) if parts else {"scene": True}
     return Decomposition(hulls, labels, cloud, tree, timings, params, objects=objects,
                          _parts=list(zip(pieces, parts, strict=True)))

@@ -312,10 +312,10 @@ def test_cli_reports_the_feature_source(tmp_path, capsys):
 
 
 def test_sub_surface_points_can_be_left_out_of_the_concavity():
-    """A ball's surface samples plus a layer of centres 0.1 under it: with ``subsurface`` the
+    """A ball's surface samples plus a layer of centres 0.15 under it: with ``subsurface`` the
     layer is found and left out of the measure, so the ball is one hull at threshold 0.05 and
     that hull still contains every centre; by default the layer is surface and the ball has to
-    split."""
+    split (0.15 deep: over the 0.1 that 7,200 points resolve, Decomposer.stop_threshold)."""
     from pointcvx.cloud import OrientedCloud
     from pointcvx.pipeline import SUBSURFACE_DEPTH, subsurface_points
     from pointcvx.solid import Solid
@@ -324,7 +324,7 @@ def test_sub_surface_points_can_be_left_out_of_the_concavity():
     surface, face = trimesh.sample.sample_surface_even(sphere, 6000, seed=0)
     dirs = np.random.default_rng(0).normal(size=(1200, 3))
     dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
-    radii = np.repeat([0.9, 1.0 - 0.5 * SUBSURFACE_DEPTH], 600)
+    radii = np.repeat([0.85, 1.0 - 0.5 * SUBSURFACE_DEPTH], 600)
     points = np.concatenate([surface, dirs * radii[:, None]])
     normals = np.concatenate([sphere.face_normals[face], dirs])
     deep = subsurface_points(points, Solid.from_trimesh(sphere))

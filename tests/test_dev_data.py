@@ -82,3 +82,18 @@ def test_raw_scan_loads_with_its_nan_holes_dropped(path, capsys):
     assert main(["info", str(path), "-n", "2000", "--seed", "1", "--json"]) == 0
     report = json.loads(capsys.readouterr().out)
     assert report["non_finite_dropped"] == holes and report["points"] == len(cloud)
+
+
+def test_the_lampposts_sparse_head_is_cut_at_what_its_samples_resolve(tmp_path, capsys):
+    """The LiDAR lamppost's head is a second object of 289 points: at 0.1 (two of its sample
+    spacings) it became 20 hulls of 5-30 points, each still about 0.1. It is cut at four
+    spacings instead, and the summary line and the report say so; the post keeps 0.1."""
+    out = tmp_path / "lamppost.json"
+    assert main(["decompose", str(DATA / "raw_scans" / "lamppost.pcd"), "-o", str(out)]) == 0
+    assert "too sparse to resolve threshold 0.1, so cut at" in capsys.readouterr().out
+    objects = json.loads(out.read_text())["objects"]
+    sparse = [o for o in objects if "resolved_threshold" in o]
+    assert len(sparse) == 1 and sparse[0]["points"] < 400 and len(sparse[0]["hulls"]) <= 6
+    assert sparse[0]["resolved_threshold"] > 0.15
+    for o in objects:
+        assert o["max_concavity"] <= o.get("resolved_threshold", 0.1)

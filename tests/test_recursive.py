@@ -243,14 +243,13 @@ def test_a_clouds_tiny_leaves_are_noise_in_no_part():
     assert np.array_equal(np.sort(np.concatenate(parts)), everyone)
 
 
-def test_a_scans_result_labels_its_noise_minus_one_and_reports_it():
-    """End to end on a cloud with a few far floaters: their points get label -1 and count as
-    noise in the cloud's info and the report; no hull is a sliver of a few points."""
-    rng = np.random.default_rng(4)
-    pts = trimesh.sample.sample_surface(l_block(), 6000, seed=5)[0]
-    floaters = rng.uniform(-0.4, 2.4, size=(5, 3)) * [1, 1, 0] + [0, 0, 2.6]  # above the L
-    result = pointcvx.decompose(np.vstack([pts, floaters]), threshold=0.05, n_points=6005, seed=0,
-                                features="fast")
+def test_a_real_splats_noise_is_labelled_minus_one_and_reported():
+    """End to end on a real splat whose split leaves a few tiny leaves (biker.ply: 9 points):
+    their points get label -1 and count as noise in the cloud's info, the report and the
+    picture's caption; no hull is a sliver of a few points."""
+    from conftest import DATA
+
+    result = pointcvx.decompose(DATA / "dev" / "splats" / "biker.ply", seed=0)
     noise = result.labels < 0
     assert 0 < noise.sum() <= 0.01 * len(noise)
     assert result.cloud.info["noise_points"] == noise.sum()
@@ -263,3 +262,64 @@ def test_a_scans_result_labels_its_noise_minus_one_and_reports_it():
     legend = drawing_from(result).legend
     assert legend["noise"] == noise.sum()
     assert f"{noise.sum()} noise" in caption_parts(legend)
+
+
+def test_a_sparse_l_is_not_split_by_its_sampling_noise():
+    """An L of two boxes sampled with 6,000 points, asked for 0.05 (two of its sample
+    spacings): cut at that, sampling noise split it into 20-odd hulls; cut at what its samples
+    resolve (GAP_SPACINGS spacings, 0.09) it is a few (2-5 by seed)."""
+    pts = trimesh.sample.sample_surface(l_block(), 6000, seed=5)[0]
+    sparse = pointcvx.decompose(pts, threshold=0.05, n_points=6000, seed=0, features="fast")
+    assert sparse.params["resolved_threshold"] > 0.05
+    assert len(sparse.hulls) <= 5
+    dec = sparse._decomposer
+    assert len(dec.merge(dec.cut(0.05, 64), 0.05)[0]) >= 10
+
+
+def _box_scan(n: int, seed: int = 0):
+    """(n, 3) points and normals uniformly on a 2 x 1 x 0.6 box's surface (a convex solid)."""
+    rng = np.random.default_rng(seed)
+    pts = rng.uniform(-1, 1, (n, 3))
+    axis = rng.integers(0, 3, n)
+    pts[np.arange(n), axis] = np.sign(rng.uniform(-1, 1, n))
+    normals = np.zeros((n, 3))
+    normals[np.arange(n), axis] = pts[np.arange(n), axis]
+    return pts * [1.0, 0.5, 0.3], normals
+
+
+def test_a_cloud_too_sparse_for_the_threshold_is_cut_at_what_it_resolves():
+    """A convex box scanned with 200 points measures about four of its sample spacings (the
+    holes between samples read as air); at the default 0.1 (one spacing) it would be cut into
+    slivers. It is cut at GAP_SPACINGS spacings instead: one hull, the raised threshold in the
+    params and in the picture's caption, and a recut at a larger threshold drops it again."""
+    from pointcvx.decomposition.concavity import GAP_SPACINGS, sample_spacing
+    from pointcvx.view.drawing import drawing_from
+    from pointcvx.view.png import caption_parts
+
+    pts, normals = _box_scan(200)
+    result = pointcvx.decompose(pointcvx.OrientedCloud(pts, normals, modality="scan"),
+                                scene="off", isolate="none", seed=0)
+    resolved = GAP_SPACINGS * sample_spacing(result.cloud.points)
+    assert resolved > 0.25
+    assert result.params["resolved_threshold"] == pytest.approx(resolved, abs=1e-6)
+    assert result.params["threshold"] == 0.1
+    assert len(result.hulls) == 1
+    assert result.max_concavity <= resolved
+    legend = drawing_from(result).legend
+    assert legend["resolved_threshold"] == result.params["resolved_threshold"]
+    assert any(p.startswith("sparse: cut at") for p in caption_parts(legend))
+    assert "resolved_threshold" not in result.recut(threshold=1.0).params
+    # The same box cut at the threshold itself, without the floor: the slivers it avoids.
+    dec = result._decomposer
+    assert len(dec.cut(0.1, 64)) >= 4
+
+
+def test_a_dense_cloud_and_a_sparse_mesh_keep_the_threshold():
+    """The floor is only for clouds whose spacing cannot resolve the threshold: a dense scan
+    (20,000 points) and a mesh (its solid is exact, whatever its sample count) keep 0.1."""
+    pts, normals = _box_scan(20000)
+    dense = pointcvx.decompose(pointcvx.OrientedCloud(pts, normals, modality="scan"),
+                               scene="off", isolate="none", seed=0)
+    assert "resolved_threshold" not in dense.params and dense._decomposer.resolution < 0.1
+    mesh = pointcvx.decompose(trimesh.creation.box((2.0, 1.0, 0.6)), n_points=200, seed=0)
+    assert mesh._decomposer.resolution == 0.0 and "resolved_threshold" not in mesh.params

@@ -7,7 +7,9 @@ and a picture of each (docs/captures.md).
 For each capture: ``pointcvx decompose CAPTURE -o OUTDIR/NAME.json --preview OUTDIR/NAME.html``
 as a user runs it (its own process, default settings, seed 0), then one markdown row from the
 JSON report: points decomposed, non-finite points dropped, points removed as support plane and as
-clutter, objects (a scene) or 1, hulls, max concavity, whole-process seconds. The PNG beside each
+clutter, objects (a scene) or 1, hulls, max concavity, the threshold it was cut at (the
+largest of its objects': above 0.1 where an object's samples are too sparse to resolve 0.1),
+whole-process seconds. The PNG beside each
 page is the picture.
 """
 
@@ -40,11 +42,14 @@ def run(capture: Path, out: Path) -> dict:
         return {"name": capture.name, "error": (res.stderr.strip().splitlines() or ["?"])[-1]}
     rep = json.loads(report.read_text())
     iso = rep.get("isolation", {}).get("removed", {})
+    params = rep.get("parameters", {})
+    cut_at = max([o["resolved_threshold"] for o in rep.get("objects") or [] if "resolved_threshold" in o]
+                 + [params.get("resolved_threshold") or params.get("threshold", 0.1)])
     return {"name": capture.name, "points": rep["totals"]["points"],
             "non_finite": rep.get("parameters", {}).get("non_finite_dropped"),
             "support": iso.get("support", 0), "clutter": iso.get("clutter", 0),
             "objects": len(rep.get("objects") or []) or 1, "hulls": rep["totals"]["hulls"],
-            "concavity": rep["totals"]["max_concavity"], "seconds": seconds}
+            "concavity": rep["totals"]["max_concavity"], "cut_at": cut_at, "seconds": seconds}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -55,15 +60,16 @@ def main(argv: list[str] | None = None) -> int:
     out = Path(args.output)
     out.mkdir(parents=True, exist_ok=True)
     print("| capture | points | removed: support | removed: clutter | objects | hulls | max concavity "
-          "| seconds |")
-    print("|---|---|---|---|---|---|---|---|")
+          "| cut at | seconds |")
+    print("|---|---|---|---|---|---|---|---|---|")
     for capture in [Path(c) for c in args.captures] or captures():
         row = run(capture, out)
         if "error" in row:
-            print(f"| {row['name']} | error: {row['error']} | | | | | | |", flush=True)
+            print(f"| {row['name']} | error: {row['error']} | | | | | | | |", flush=True)
             continue
         print(f"| {row['name']} | {row['points']} | {row['support']} | {row['clutter']} | {row['objects']} "
-              f"| {row['hulls']} | {row['concavity']:.4f} | {row['seconds']:.1f} |", flush=True)
+              f"| {row['hulls']} | {row['concavity']:.4f} | {row['cut_at']:.3g} | {row['seconds']:.1f} |",
+              flush=True)
     return 0
 
 

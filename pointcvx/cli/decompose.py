@@ -76,6 +76,14 @@ def check_output(out: Path, fmt: str, per_hull: bool, input_path: str, overwrite
     check_writable(main_file(out, fmt, per_hull), [input_path], overwrite)
 
 
+def resolved_thresholds(result) -> dict[str, float]:
+    """Object name (or "shape") -> the threshold it was cut at, for each one whose samples were
+    too sparse to resolve the asked one (``Decomposer.stop_threshold``)."""
+    if "resolved_threshold" in result.params:
+        return {"shape": result.params["resolved_threshold"]}
+    return {o["name"]: o["resolved_threshold"] for o in result.objects or [] if "resolved_threshold" in o}
+
+
 def summary_line(summary: dict, limits) -> str:
     """The line printed at the end: hulls, concavity, time, features, caps, output."""
     line = (f"{summary['hulls']} hulls, max concavity {summary['max_concavity']:.4f}, "
@@ -87,6 +95,9 @@ def summary_line(summary: dict, limits) -> str:
         line += "; removed " + ", ".join(f"{n} {why} points" for why, n in removed.items())
     if summary.get("noise_points"):
         line += f"; {summary['noise_points']} noise points in no hull"
+    if summary.get("resolved_threshold"):
+        line += (f"; too sparse to resolve threshold {summary['threshold']:g}, so cut at "
+                 + ", ".join(f"{t:.3g} ({name})" for name, t in summary["resolved_threshold"].items()))
     if limits.active:
         caps = ", ".join(f"{what} <= {v}" for what, v in (("vertices", limits.max_vertices),
                                                            ("triangles", limits.max_faces))
@@ -160,6 +171,8 @@ def run(args: argparse.Namespace) -> int:
     if "isolation" in result.cloud.info:
         summary["removed"] = result.cloud.info["isolation"]["removed"]
     summary["noise_points"] = int(result.cloud.info.get("noise_points", 0))
+    summary["threshold"] = result.params["threshold"]
+    summary["resolved_threshold"] = resolved_thresholds(result)
     summary["timings"] = {k: round(v, 3) for k, v in result.timings.items()}
     print(json.dumps(summary, indent=2) if args.json else summary_line(summary, limits))
     return 0

@@ -203,6 +203,23 @@ class Decomposer:
         self._features = np.asarray(self._features(progress=progress), dtype=np.float64)
         self.feature_seconds = time.perf_counter() - t
 
+    @property
+    def resolution(self) -> float:
+        """The least concavity this cloud's samples resolve: :data:`GAP_SPACINGS` sample
+        spacings (0 for a mesh, whose solid is exact).
+
+        On a point cloud the air between a hull and the surface is read as the distance to the
+        nearest sample, and the solid is rebuilt from the samples; both err by up to the gaps
+        the samples leave. A convex box of 300 points measures 0.28 (4 spacings); a LiDAR
+        lamp head of 289 points, cut at 0.1 (2 of its spacings), became 20 hulls of 5-30
+        points, each still about 0.1 (docs/captures.md)."""
+        return 0.0 if self.is_mesh else GAP_SPACINGS * self.spacing
+
+    def stop_threshold(self, threshold: float) -> float:
+        """The threshold the split and merge use: ``threshold``, or :attr:`resolution` where
+        the samples are too sparse to resolve it."""
+        return max(float(threshold), self.resolution)
+
     def will_split(self, threshold: float, max_hulls: int) -> bool:
         """Whether :meth:`cut` at these settings splits anything (the root is above the
         threshold and more than one hull is allowed), i.e. needs the features."""

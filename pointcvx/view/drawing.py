@@ -46,7 +46,8 @@ class Drawing:
         What the page's legend and the PNG's caption say: ``title``, ``hulls``,
         ``max_concavity``, ``seconds``, ``features``, ``modality``, ``points`` and
         ``points_total`` (drawn and given), ``removed``, ``noise`` (a scan's or splat's points
-        in no hull); ``None`` where unknown.
+        in no hull), ``resolved_threshold`` (the largest threshold an object too sparse for the
+        asked one was cut at); ``None`` where unknown.
     up : str
         The axis that points up, one of :data:`UP_AXES`.
     up_exact : (3,) float64, optional
@@ -156,6 +157,12 @@ def _legend_of(x) -> dict[str, Any]:
         legend["seconds"] = float(x.timings.get("total")) if "total" in x.timings else None
         legend["features"] = x.params.get("features")
         legend["noise"] = cloud.info.get("noise_points") or None
+        # the threshold the sparsest object was cut at, where its samples could not resolve
+        # the asked one (Decomposer.stop_threshold)
+        resolved = [o["resolved_threshold"] for o in getattr(x, "objects", None) or []
+                    if "resolved_threshold" in o] + (
+            [x.params["resolved_threshold"]] if "resolved_threshold" in x.params else [])
+        legend["resolved_threshold"] = max(resolved) if resolved else None
     return legend
 
 

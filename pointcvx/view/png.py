@@ -325,6 +325,8 @@ def caption_parts(legend: dict) -> list[str]:
         parts.append(f"{legend['removed']:,} removed (grey)")
     if legend.get("noise"):
         parts.append(f"{legend['noise']:,} noise")
+    if legend.get("resolved_threshold"):
+        parts.append(f"sparse: cut at {legend['resolved_threshold']:.3g}")
     return [str(p) for p in parts if p]
 
 

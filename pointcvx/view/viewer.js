@@ -234,6 +234,7 @@
                : L.points.toLocaleString() + " of " + L.points_total.toLocaleString()]);
     if (L.removed) rows.push(["removed", L.removed.toLocaleString() + " (grey)"]);
     if (L.noise) rows.push(["noise", L.noise.toLocaleString() + " points in no hull"]);
+    if (L.resolved_threshold) rows.push(["sparse", "cut at " + L.resolved_threshold.toPrecision(3)]);
     var table = document.getElementById("stats");
     rows.forEach(function (r) {
       var tr = document.createElement("tr"), a = document.createElement("td"), b = document.createElement("td");
