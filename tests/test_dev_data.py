@@ -97,3 +97,43 @@ def test_the_lampposts_sparse_head_is_cut_at_what_its_samples_resolve(tmp_path, 
     assert sparse[0]["resolved_threshold"] > 0.15
     for o in objects:
         assert o["max_concavity"] <= o.get("resolved_threshold", 0.1)
+
+
+def test_the_office_frames_wall_is_static_and_frees_its_objects(tmp_path):
+    """office1.pcd sees a room's back wall straight on, with no floor in view: the wall (a plane
+    bounding the view) is removed and reported, what stood against it falls into several
+    objects (it was one, joined by the wall), up is the image's, and the MJCF scene has the wall
+    as a static box that MuJoCo loads and steps."""
+    import mujoco
+
+    result = pointcvx.decompose(DATA / "raw_scans" / "office1.pcd", seed=0)
+    iso = result.cloud.info["isolation"]
+    assert iso["removed"]["walls"] > 10000 and len(iso["walls"]) >= 1
+    assert iso["walls"][0]["normal"][2] < -0.99  # the back wall, facing the sensor
+    assert len(result.objects) >= 3 and result.cloud.info["up"] == [0.0, -1.0, 0.0]
+    assert result.report()["isolation"]["walls"] == iso["walls"]
+    written = result.export(tmp_path / "office.xml")
+    xml = next(p for p in written if str(p).endswith(".xml"))
+    assert 'name="wall_00" type="box"' in xml.read_text()
+    model = mujoco.MjModel.from_xml_path(str(xml))
+    assert model.nbody - 1 == len(result.objects)  # the world, then one body per object
+    data = mujoco.MjData(model)
+    for _ in range(100):
+        mujoco.mj_step(model, data)
+    assert np.isfinite(data.qpos).all()
+    # URDF: the wall a box collision of the root link; USD: a static collider beside the bodies
+    import xml.etree.ElementTree as ET
+
+    root = ET.parse(result.export(tmp_path / "office.urdf")[0]).getroot().find("link")
+    names = [c.get("name") for c in root.findall("collision")]
+    assert names == [f"wall_{k:02d}" for k in range(len(iso["walls"]))]
+    from pxr import Usd, UsdPhysics
+
+    stage = Usd.Stage.Open(str(result.export(tmp_path / "office.usda")[0]))
+    wall = stage.GetPrimAtPath("/office/wall_00/box")
+    assert wall.IsValid() and wall.HasAPI(UsdPhysics.CollisionAPI)
+    assert not wall.GetParent().HasAPI(UsdPhysics.RigidBodyAPI)
+    # the wall's box spans the wall's points
+    lo, hi = np.asarray(iso["walls"][0]["bounds"])
+    geom = model.geom(model.geom("wall_00").id)
+    assert geom.size[0] * 2 >= 0.9 * min(hi[0] - lo[0], hi[1] - lo[1])

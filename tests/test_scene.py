@@ -226,3 +226,62 @@ def test_the_up_axis_turns_robot_files_not_hull_coordinates(tmp_path):
         np.allclose(np.sort(first, axis=0), np.sort(mug.hulls[0].vertices, axis=0))
     with pytest.raises(pointcvx.OutputError, match="up must be"):
         mug.export(tmp_path / "c.xml", up="sideways")
+
+
+def _room_frame(rng):
+    """A depth frame of a room corner in sensor coordinates (x right, y down, z forward; the
+    sensor at the origin): a back wall at z = 4, a side wall at x = 2, the floor at y = 1.5, a
+    cabinet standing against the back wall and a box on the floor; depth noise 5 mm. Returns
+    (points, {name: index array})."""
+    def grid(n, a, b, c):  # n points uniform over the box of the (lo, hi) ranges a, b, c
+        return np.stack([rng.uniform(*a, n), rng.uniform(*b, n), rng.uniform(*c, n)], axis=1)
+
+    parts = {"back": grid(8000, (-2, 2), (-1.5, 1.5), (4, 4)),
+             "side": grid(5000, (2, 2), (-1.5, 1.5), (1, 4)),
+             "floor": grid(6000, (-2, 2), (1.5, 1.5), (1, 4)),
+             "cabinet": box_points([-1.5, 0.0, 3.4], [-0.5, 1.5, 3.97], 3000, rng),
+             "box": box_points([0.3, 1.0, 2.0], [1.0, 1.49, 2.6], 2000, rng)}
+    pts = np.concatenate(list(parts.values()))
+    pts += rng.normal(0, 0.005, pts.shape)
+    ends = np.cumsum([0] + [len(p) for p in parts.values()])
+    return pts, {k: np.arange(ends[i], ends[i + 1]) for i, k in enumerate(parts)}
+
+
+def test_a_depth_frames_walls_are_removed_and_free_what_stands_against_them(rng):
+    """The room corner's back and side walls bound the view (the sensor and everything else on
+    one side): they are walls, removed and reported with their planes; the cabinet's front, with
+    the wall behind it, is not. Without walls the cabinet is one piece with them."""
+    from pointcvx.scene import FRAME_UP
+
+    pts, part = _room_frame(rng)
+    found = isolate(pts, up=FRAME_UP, sensor=np.zeros(3))
+    assert found.support is not None and found.support.normal @ FRAME_UP > 0.99
+    normals = sorted(tuple(np.round(plane.normal).astype(int)) for plane, _ in found.walls)
+    assert normals == [(-1, 0, 0), (0, 0, -1)]  # both face the sensor
+    assert found.removed["walls"] >= 0.95 * (len(part["back"]) + len(part["side"]))
+    # the cabinet's back face lies in the wall's band, the box's bottom in the floor's (both
+    # hidden from a real sensor)
+    assert found.keep[part["cabinet"]].mean() > 0.5 and found.keep[part["box"]].mean() > 0.7
+    assert found.keep[part["back"]].mean() < 0.02 and found.keep[part["side"]].mean() < 0.02
+    assert found.pieces == 2
+    walls = found.report()["walls"]
+    assert len(walls) == 2 and {"normal", "offset", "bounds", "tolerance"} <= set(walls[0])
+    plain = isolate(pts, up=FRAME_UP)
+    assert not plain.walls and plain.keep[part["back"]].mean() > 0.9
+    labels = components(pts[plain.keep])
+    keep_idx = np.flatnonzero(plain.keep)
+    lab = np.full(len(pts), -1)
+    lab[keep_idx] = labels
+    assert np.bincount(lab[part["cabinet"]][lab[part["cabinet"]] >= 0]).argmax() == \
+        np.bincount(lab[part["back"]][lab[part["back"]] >= 0]).argmax()
+
+
+def test_an_objects_faces_are_not_walls(rng):
+    """Walls are only looked for in depth frames (a sensor); even there a box on the floor seen
+    from above is no wall: its top has the sensor above and the rest below."""
+    from pointcvx.scene import FRAME_UP
+
+    box = box_points([-0.5, 1.0, 2.0], [0.5, 1.5, 3.0], 4000, rng)
+    floor = np.stack([rng.uniform(-3, 3, 6000), np.full(6000, 1.5), rng.uniform(1, 5, 6000)], axis=1)
+    found = isolate(np.concatenate([box, floor]), up=FRAME_UP, sensor=np.zeros(3))
+    assert not found.walls and found.keep[: len(box)].mean() > 0.7  # all but its bottom

@@ -6,11 +6,10 @@ and a picture of each (docs/captures.md).
 
 For each capture: ``pointcvx decompose CAPTURE -o OUTDIR/NAME.json --preview OUTDIR/NAME.html``
 as a user runs it (its own process, default settings, seed 0), then one markdown row from the
-JSON report: points decomposed, non-finite points dropped, points removed as support plane and as
-clutter, objects (a scene) or 1, hulls, max concavity, the threshold it was cut at (the
-largest of its objects': above 0.1 where an object's samples are too sparse to resolve 0.1),
-whole-process seconds. The PNG beside each
-page is the picture.
+JSON report: points decomposed, non-finite points dropped, points removed as support plane, as
+walls (depth frames) and as clutter, objects (a scene) or 1, hulls, max concavity, the threshold
+it was cut at (the largest of its objects': above 0.1 where an object's samples are too sparse
+to resolve 0.1), whole-process seconds. The PNG beside each page is the picture.
 """
 
 from __future__ import annotations
@@ -47,7 +46,7 @@ def run(capture: Path, out: Path) -> dict:
                  + [params.get("resolved_threshold") or params.get("threshold", 0.1)])
     return {"name": capture.name, "points": rep["totals"]["points"],
             "non_finite": rep.get("parameters", {}).get("non_finite_dropped"),
-            "support": iso.get("support", 0), "clutter": iso.get("clutter", 0),
+            "support": iso.get("support", 0), "walls": iso.get("walls", 0), "clutter": iso.get("clutter", 0),
             "objects": len(rep.get("objects") or []) or 1, "hulls": rep["totals"]["hulls"],
             "concavity": rep["totals"]["max_concavity"], "cut_at": cut_at, "seconds": seconds}
 
@@ -59,15 +58,16 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     out = Path(args.output)
     out.mkdir(parents=True, exist_ok=True)
-    print("| capture | points | removed: support | removed: clutter | objects | hulls | max concavity "
-          "| cut at | seconds |")
-    print("|---|---|---|---|---|---|---|---|---|")
+    print("| capture | points | removed: support | removed: walls | removed: clutter | objects | hulls "
+          "| max concavity | cut at | seconds |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for capture in [Path(c) for c in args.captures] or captures():
         row = run(capture, out)
         if "error" in row:
-            print(f"| {row['name']} | error: {row['error']} | | | | | | | |", flush=True)
+            print(f"| {row['name']} | error: {row['error']} | | | | | | | | |", flush=True)
             continue
-        print(f"| {row['name']} | {row['points']} | {row['support']} | {row['clutter']} | {row['objects']} "
+        print(f"| {row['name']} | {row['points']} | {row['support']} | {row['walls']} | {row['clutter']} "
+              f"| {row['objects']} "
               f"| {row['hulls']} | {row['concavity']:.4f} | {row['cut_at']:.3g} | {row['seconds']:.1f} |",
               flush=True)
     return 0

@@ -92,7 +92,7 @@ def summary_line(summary: dict, limits) -> str:
         line += f", a scene of {summary['objects']} objects"
     removed = {k: v for k, v in (summary.get("removed") or {}).items() if v}
     if removed:
-        line += "; removed " + ", ".join(f"{n} {why} points" for why, n in removed.items())
+        line += "; removed " + ", ".join(f"{n} {why.rstrip('s')} points" for why, n in removed.items())
     if summary.get("noise_points"):
         line += f"; {summary['noise_points']} noise points in no hull"
     if summary.get("resolved_threshold"):

@@ -46,6 +46,7 @@ from .meshes import mesh_obj_text, obj_text, scene_bytes, stl_bytes
 from .report import report, report_text
 from .robots import (
     Body,
+    StaticBox,
     Support,
     mass_properties,
     mjcf_scene_text,
@@ -120,6 +121,28 @@ def scene_support(result) -> Support | None:
     return Support(normal, point, 2.0 * float(np.linalg.norm(hi - lo)))
 
 
+def scene_walls(result) -> list[StaticBox]:
+    """A depth frame's walls (``result.cloud.info["isolation"]["walls"]``) as static boxes, input
+    units: each wall's face lies on its plane, over the box of its points projected on it, and
+    the box is as thick as the wall's band (at least 1 % of its width), behind the face."""
+    if not result.objects:
+        return []
+    boxes = []
+    for wall in result.cloud.info.get("isolation", {}).get("walls", []):
+        normal = np.asarray(wall["normal"], dtype=np.float64)
+        frame = up_rotation(normal).T  # columns: two in-plane axes, then the normal
+        lo, hi = np.asarray(wall["bounds"], dtype=np.float64)
+        corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
+                            for z in (lo[2], hi[2])])
+        uv = corners @ frame[:, :2]
+        a, b = uv.min(axis=0), uv.max(axis=0)
+        width = float(max((b - a).max(), 1e-9))
+        thick = max(2.0 * float(wall["tolerance"]), 0.01 * width)
+        face = frame[:, :2] @ ((a + b) / 2) + float(wall["offset"]) * normal
+        boxes.append(StaticBox(face - 0.5 * thick * normal, frame, np.array([*(b - a), thick])))
+    return boxes
+
+
 def plan(result, path: str | os.PathLike, format: str | None = None, per_hull: bool = False,
          free_joint: bool = True, density: float = 1000.0, up="auto") -> dict[Path, str | bytes]:
     """Every file of ``result`` in ``format`` at ``path``, main file first: path -> content.
@@ -153,7 +176,8 @@ def plan(result, path: str | os.PathLike, format: str | None = None, per_hull: b
             mine = {i: solids[i] for i in obj["hulls"] if i in solids}
             mass, center, _ = mass_properties(list(mine.values()), density)
             bodies.append((obj["name"], mine, mass, center))
-        return {main: usda_scene_text(usd_identifier(main.stem), bodies, rotation, scene_support(result))}
+        return {main: usda_scene_text(usd_identifier(main.stem), bodies, rotation, scene_support(result),
+                                      walls=scene_walls(result))}
     name = main.stem
     files: dict[Path, str | bytes] = {main: ""}
     bodies = []
@@ -169,10 +193,10 @@ def plan(result, path: str | os.PathLike, format: str | None = None, per_hull: b
     if result.objects:
         support = scene_support(result)
         if fmt == "urdf":
-            files[main] = urdf_scene_text(name, bodies, rotation, support)
+            files[main] = urdf_scene_text(name, bodies, rotation, support, walls=scene_walls(result))
         else:
             files[main] = mjcf_scene_text(name, bodies, rotation, support, free_joint=free_joint,
-                                          density=density)
+                                          density=density, walls=scene_walls(result))
         return files
     body = bodies[0]
     shown = visual_mesh(result)

@@ -139,6 +139,28 @@ class Support:
         return self.point - 0.5 * thick * z, r, np.array([self.size, self.size, thick])
 
 
+@dataclass
+class StaticBox:
+    """A static box of a scene (a depth frame's wall), input units: (3,) ``centre``, (3, 3)
+    ``frame`` (its columns the box's axes, the third the wall's normal) and (3,) full
+    ``extents``."""
+
+    centre: np.ndarray
+    frame: np.ndarray
+    extents: np.ndarray
+
+    def box(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        return self.centre, self.frame, self.extents
+
+
+def _urdf_box(name: str, box, rotation: np.ndarray) -> list[str]:
+    """A ``<collision>`` element of a static box (``box.box()``: centre, frame, extents)."""
+    centre, frame, extents = box.box()
+    return [f'    <collision name="{name}">',
+            f'      <origin xyz="{_vec(rotation @ centre)}" rpy="{_vec(rpy(rotation @ frame))}"/>',
+            f'      <geometry><box size="{_vec(extents)}"/></geometry>', "    </collision>"]
+
+
 def _urdf_link(name: str, body: Body, rotation: np.ndarray, q) -> list[str]:
     i = body.inertia
     origin = f'<origin xyz="0 0 0" rpy="{_vec(rpy(rotation))}"/>'
@@ -172,17 +194,18 @@ def urdf_text(name: str, collision_files: list[str], visual_files: list[str], ma
     return "\n".join(lines) + "\n"
 
 
-def urdf_scene_text(name: str, bodies: list[Body], rotation: np.ndarray, support: Support | None) -> str:
-    """A URDF of a scene: a root link ``name`` (holding the support plane as a thin box collision)
-    and one link per body, fixed to it (a captured scene is the robot's environment)."""
+def urdf_scene_text(name: str, bodies: list[Body], rotation: np.ndarray, support: Support | None,
+                    walls: tuple = ()) -> str:
+    """A URDF of a scene: a root link ``name`` (holding the support plane and each of ``walls``
+    (:class:`StaticBox`) as box collisions) and one link per body, fixed to it (a captured scene
+    is the robot's environment)."""
     from xml.sax.saxutils import quoteattr as q
 
     lines = ['<?xml version="1.0"?>', f"<robot name={q(name)}>", f"  <link name={q(name)}>"]
     if support is not None:
-        centre, frame, extents = support.box()
-        lines += ['    <collision name="support">',
-                  f'      <origin xyz="{_vec(rotation @ centre)}" rpy="{_vec(rpy(rotation @ frame))}"/>',
-                  f'      <geometry><box size="{_vec(extents)}"/></geometry>', "    </collision>"]
+        lines += _urdf_box("support", support, rotation)
+    for k, wall in enumerate(walls):
+        lines += _urdf_box(f"wall_{k:02d}", wall, rotation)
     lines.append("  </link>")
     for body in bodies:
         lines += _urdf_link(body.name, body, rotation, q)
@@ -248,9 +271,10 @@ def mjcf_text(name: str, collision_files: list[str], visual_files: list[str],
 
 
 def mjcf_scene_text(name: str, bodies: list[Body], rotation: np.ndarray, support: Support | None,
-                    free_joint: bool = True, density: float = 1000.0) -> str:
-    """An MJCF model of a scene: the support as a static plane geom and one body per object (free
-    unless ``free_joint`` is False), all turned by ``rotation`` so the scene's up is +z."""
+                    free_joint: bool = True, density: float = 1000.0, walls: tuple = ()) -> str:
+    """An MJCF model of a scene: the support as a static plane geom, each of ``walls``
+    (:class:`StaticBox`) as a static box geom, and one body per object (free unless
+    ``free_joint`` is False), all turned by ``rotation`` so the scene's up is +z."""
     from xml.sax.saxutils import quoteattr as q
 
     lines = [*_mjcf_head(name, density, q), *_mjcf_assets(bodies, q), "  </asset>", "  <worldbody>"]
@@ -259,6 +283,10 @@ def mjcf_scene_text(name: str, bodies: list[Body], rotation: np.ndarray, support
         plane = quaternion(up_rotation(normal).T)
         lines.append(f'    <geom name="support" type="plane" size="{_vec([support.size / 2] * 2)} 1" '
                      f'pos="{_vec(rotation @ support.point)}" quat="{_vec(plane)}"/>')
+    for k, wall in enumerate(walls):
+        centre, frame, extents = wall.box()
+        lines.append(f'    <geom name="wall_{k:02d}" type="box" size="{_vec(np.asarray(extents) / 2)}" '
+                     f'pos="{_vec(rotation @ centre)}" quat="{_vec(quaternion(rotation @ frame))}"/>')
     for body in bodies:
         lines += _mjcf_body(body, free_joint, rotation, q)
     lines += ["  </worldbody>", "</mujoco>"]

@@ -122,23 +122,31 @@ def usda_text(name: str, hulls, visual: tuple[np.ndarray, np.ndarray] | None = N
     return "\n".join(lines + body) + "\n"
 
 
+def _box_lines(name: str, box, digits: int) -> list[str]:
+    """A static collider Xform ``name`` holding the box ``box.box()`` (centre, frame, extents)."""
+    from ..decomposition.hull import convex_hull
+
+    centre, frame, extents = box.box()
+    corners = np.array([[x, y, z] for x in (-0.5, 0.5) for y in (-0.5, 0.5) for z in (-0.5, 0.5)])
+    hull = convex_hull(centre + (corners * extents) @ np.asarray(frame).T)
+    return ["", f'    def Xform "{name}"', "    {",
+            *usd_mesh_lines("box", hull.vertices, hull.faces, indent="        ", collider=True,
+                            digits=digits), "    }"]
+
+
 def usda_scene_text(name: str, bodies: list[tuple[str, dict, float, np.ndarray]], rotation: np.ndarray,
-                    support, digits: int = 17) -> str:
+                    support, digits: int = 17, walls: tuple = ()) -> str:
     """A USD text layer of a scene: the default prim Xform ``name`` turned by ``rotation`` (the
     scene's up to Z) holding a rigid body Xform per object (``bodies``: (name, hull index ->
     ((v, 3), (f, 3)), mass, (3,) centre)) and, for ``support`` (a
-    :class:`~pointcvx.export.robots.Support`), a static collider box ``support``."""
+    :class:`~pointcvx.export.robots.Support`), a static collider box ``support``, and one
+    ``wall_NN`` for each of ``walls`` (:class:`~pointcvx.export.robots.StaticBox`)."""
     lines = [*_layer_head(name, f"pointcvx scene: {len(bodies)} objects"), f'def Xform "{name}"', "{",
              *_orient_lines(rotation, "    ")]
     if support is not None:
-        centre, frame, extents = support.box()
-        corners = np.array([[x, y, z] for x in (-0.5, 0.5) for y in (-0.5, 0.5) for z in (-0.5, 0.5)])
-        from ..decomposition.hull import convex_hull
-
-        box = convex_hull(centre + (corners * extents) @ frame.T)
-        lines += ["", '    def Xform "support"', "    {",
-                  *usd_mesh_lines("box", box.vertices, box.faces, indent="        ", collider=True,
-                                  digits=digits), "    }"]
+        lines += _box_lines("support", support, digits)
+    for k, wall in enumerate(walls):
+        lines += _box_lines(f"wall_{k:02d}", wall, digits)
     for body_name, hulls, mass, center in bodies:
         lines += ["", *_body_lines(usd_identifier(body_name), hulls, None, mass, center, digits, "    ")]
     lines.append("}")

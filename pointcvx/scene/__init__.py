@@ -8,11 +8,11 @@ import numpy as np
 
 from ..cloud import OrientedCloud
 from .components import components
-from .isolate import Isolation, isolate, support_plane
+from .isolate import Isolation, isolate, support_plane, walls
 from .planes import Plane, find_planes, fit_plane, ransac_plane
 
 __all__ = ["Isolation", "Plane", "components", "find_planes", "fit_plane", "isolate", "isolate_cloud",
-           "ransac_plane", "support_plane"]
+           "ransac_plane", "support_plane", "walls"]
 
 #: Modalities that ``isolate="auto"`` frees from their surroundings.
 ISOLATED_MODALITIES = ("splat", "scan")
@@ -31,13 +31,17 @@ def resolve_mode(mode: str, modality: str) -> str:
 def isolate_cloud(cloud: OrientedCloud, mode: str = "auto", crop=None, seed: int = 0) -> OrientedCloud:
     """``cloud`` (in its current coordinates) with its surroundings removed (:func:`isolate`):
     the kept points, ``cloud.removed`` holding the others, ``cloud.info["isolation"]`` saying
-    what was removed and why, and ``cloud.info["up"]`` the support plane's normal when found."""
+    what was removed and why, and ``cloud.info["up"]`` the support plane's normal when found (in a
+    depth frame without one, the image's up)."""
     mode = resolve_mode(mode, cloud.modality)
     if mode == "none" and crop is None:
         return cloud
-    up = FRAME_UP if cloud.info.get("organized") else None
+    frame = bool(cloud.info.get("organized"))
+    up = FRAME_UP if frame else None
+    # a depth frame's sensor: its viewpoint's position (the origin of the sensor frame)
+    sensor = np.asarray(cloud.info.get("viewpoint", [0.0] * 7)[:3], dtype=np.float64) if frame else None
     found = isolate(cloud.points, mode, crop=None if crop is None else np.reshape(crop, (2, 3)),
-                    up=up, seed=seed)
+                    up=up, sensor=sensor, seed=seed)
     if found.keep.all():
         out = cloud.replace()
     else:
@@ -47,4 +51,6 @@ def isolate_cloud(cloud: OrientedCloud, mode: str = "auto", crop=None, seed: int
     out.info["isolation"] = {"mode": mode, **found.report()}
     if found.up is not None:
         out.info["up"] = np.round(found.up, 6).tolist()
+    elif frame:  # no floor in view (a wall seen straight on): the image's up
+        out.info["up"] = FRAME_UP.tolist()
     return out

@@ -21,6 +21,20 @@ A plane is the **support** when:
 
 In an organised depth frame the image's up direction (``-y`` of the sensor frame) is known, and
 the support is the largest plane facing it (within :data:`FRAME_UP_COS`), objects above it.
+
+A depth frame of a room also sees the room's **walls** (and ceiling), which join whatever stands
+against them into one piece. A plane of a frame is a wall when (:func:`walls`):
+
+- it holds at least :data:`WALL_SHARE` of the points left after the support;
+- the sensor and at least :data:`ONE_SIDED` of the other points lie on the same side of it (it
+  bounds the view: a cabinet's front has the wall behind it, a box's top has the sensor above
+  it and the other objects below);
+- its outline covers at least :data:`WALL_AREA` of the area of the rest's shadow on it, and it
+  spans at least :data:`WALL_SPAN` of the whole frame's extent along both of its own axes (a
+  box's face is small beside the floor it stands on).
+
+Walls are removed like the support, band and all, and reported (``removed["walls"]``, the planes
+in ``walls``); scene exports give each a static box.
 """
 
 from __future__ import annotations
@@ -45,6 +59,18 @@ FRAME_UP_COS = 0.5
 CLUTTER_SHARE = 0.05
 #: Plane tolerance: this many median point spacings, and at least this share of the extent.
 PLANE_SPACINGS, PLANE_EXTENT = 2.0, 0.005
+#: A wall holds at least this share of a depth frame's points left after the support ...
+WALL_SHARE = 0.05
+#: ... and its outline covers at least this share of the rest's shadow on it.
+WALL_AREA = 0.5
+#: ... and spans at least this share of the frame's extent along both of its axes.
+WALL_SPAN = 0.5
+#: At most this many walls per frame.
+MAX_WALLS = 6
+#: A depth sensor's error grows with distance: a wall's points and the points just in front of
+#: it spread over this share of the wall's distance from the sensor (a Kinect's 5 m wall is a
+#: slab 0.2 m thick), and at least the plane tolerance.
+WALL_NOISE = 0.03
 
 
 @dataclass
@@ -55,9 +81,12 @@ class Isolation:
     ----------
     keep : (n,) bool, the points of the object(s).
     support : Plane or None, oriented with the objects on its positive side.
-    removed : dict of str -> int, points removed per reason ("crop", "support", "clutter").
+    removed : dict of str -> int, points removed per reason ("crop", "support", "walls",
+        "clutter").
     pieces : int, separate pieces kept.
     up : (3,) float or None, the support's normal (the up axis it implies).
+    walls : list of (Plane, (2, 3) float), a depth frame's walls, oriented towards the sensor,
+        each with the box (min and max corners) of its points.
     """
 
     keep: np.ndarray
@@ -65,12 +94,16 @@ class Isolation:
     removed: dict = field(default_factory=dict)
     pieces: int = 1
     up: np.ndarray | None = None
+    walls: list = field(default_factory=list)
 
     def report(self) -> dict:
         """JSON-able summary for ``cloud.info``."""
         out = {"kept": int(self.keep.sum()), "removed": dict(self.removed), "pieces": int(self.pieces)}
         if self.support is not None:
             out["support_plane"] = self.support.as_dict()
+        if self.walls:
+            out["walls"] = [{**plane.as_dict(), "bounds": np.round(box, 9).tolist()}
+                            for plane, box in self.walls]
         if self.up is not None:
             out["up"] = np.round(self.up, 6).tolist()
         return out
@@ -155,8 +188,57 @@ def support_plane(points: np.ndarray, *, up: np.ndarray | None = None, seed: int
     return None
 
 
+def _spans(wall: np.ndarray, frame: np.ndarray, normal: np.ndarray) -> bool:
+    """Whether the (m, 3) points of a wall of ``normal`` span at least :data:`WALL_SPAN` of the
+    (n, 3) ``frame``'s extent along both of the wall's principal in-plane axes."""
+    u, v = _plane_basis(normal)
+    flat = np.stack([wall @ u, wall @ v], axis=1)
+    axes = np.linalg.svd(flat - flat.mean(axis=0), full_matrices=False)[2]  # (2, 2) rows
+    in_plane = axes @ np.stack([u, v])  # (2, 3): the principal axes in 3D
+    return bool(np.all(np.ptp(wall @ in_plane.T, axis=0) >= WALL_SPAN * np.ptp(frame @ in_plane.T, axis=0)))
+
+
+def walls(points: np.ndarray, sensor: np.ndarray, *, frame: np.ndarray | None = None,
+          seed: int = 0) -> list[Plane]:
+    """The walls of a depth frame's (n, 3) ``points`` seen from (3,) ``sensor``, largest first,
+    each oriented towards the sensor, its ``inliers`` over ``points`` (see the module docstring).
+    ``frame``: all the frame's points (default ``points``), for its extent. Planes are looked for
+    again after each wall is taken out, at most :data:`MAX_WALLS`."""
+    pts = np.asarray(points, dtype=np.float64)
+    every = pts if frame is None else np.asarray(frame, dtype=np.float64)
+    free = np.ones(len(pts), dtype=bool)
+    found: list[Plane] = []
+    if len(pts) < 50:
+        return found
+    tol = max(PLANE_SPACINGS * spacing(pts), PLANE_EXTENT * float(np.ptp(pts, axis=0).max()))
+    while len(found) < MAX_WALLS and free.sum() >= 50:
+        idx = np.flatnonzero(free)
+        wall = None
+        for plane in find_planes(pts[idx], tol, min_share=WALL_SHARE, seed=seed + len(found)):
+            if plane.distance(sensor[None])[0] < 0:
+                plane = plane.flipped()
+            band = max(tol, WALL_NOISE * float(plane.distance(sensor[None])[0]))
+            rest = plane.distance(pts[idx]) > band
+            if rest.sum() < 20 or (plane.distance(pts[idx[~plane.inliers]]) > -band).mean() < ONE_SIDED:
+                continue
+            area = _outline_area(pts[idx[plane.inliers]], plane.normal)
+            if area >= WALL_AREA * _outline_area(pts[idx[rest]], plane.normal) and _spans(
+                    pts[idx[plane.inliers]], every, plane.normal):
+                wall = plane
+                break
+        if wall is None:
+            break
+        on = np.zeros(len(pts), dtype=bool)
+        # the wall's band (depth noise spreads it) and whatever lies behind it
+        on[idx] = wall.distance(pts[idx]) <= band
+        found.append(Plane(wall.normal, wall.offset, on, band))
+        free &= ~on
+    return found
+
+
 def isolate(points: np.ndarray, mode: str = "all", *, crop: np.ndarray | None = None,
-            up: np.ndarray | None = None, seed: int = 0) -> Isolation:
+            up: np.ndarray | None = None, sensor: np.ndarray | None = None,
+            seed: int = 0) -> Isolation:
     """Which of (n, 3) ``points`` are the object(s).
 
     Parameters
@@ -170,6 +252,9 @@ def isolate(points: np.ndarray, mode: str = "all", *, crop: np.ndarray | None = 
         Keep only the points inside this box (its min and max corners), first.
     up : (3,) float, optional
         A known up direction (an organised depth frame's image up).
+    sensor : (3,) float, optional
+        Where the sensor stood (a depth frame's viewpoint): its frame's walls are removed too
+        (:func:`walls`).
     seed : int
     """
     pts = np.asarray(points, dtype=np.float64)
@@ -183,6 +268,7 @@ def isolate(points: np.ndarray, mode: str = "all", *, crop: np.ndarray | None = 
     if mode == "none" or keep.sum() < 50:
         return result
     idx = np.flatnonzero(keep)
+    framed = keep.copy()  # the frame (inside the crop), for the walls' extent
     plane = support_plane(pts[idx], up=up, seed=seed)
     if plane is not None:
         # the plane's band (depth noise spreads it) and whatever lies under it
@@ -194,6 +280,14 @@ def isolate(points: np.ndarray, mode: str = "all", *, crop: np.ndarray | None = 
         result.removed["support"] = int(on.sum())
         keep[idx[on]] = False
         idx = idx[~on]
+    if sensor is not None and len(idx):
+        for wall in walls(pts[idx], np.asarray(sensor, dtype=np.float64), frame=pts[framed],
+                          seed=seed):
+            box = np.stack([pts[idx[wall.inliers]].min(axis=0), pts[idx[wall.inliers]].max(axis=0)])
+            result.walls.append((wall, box))
+            keep[idx[wall.inliers]] = False
+        result.removed["walls"] = int(len(idx) - keep[idx].sum())
+        idx = idx[keep[idx]]
     if len(idx) == 0:
         return result
     labels = components(pts[idx])
