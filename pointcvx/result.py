@@ -137,6 +137,14 @@ class Decomposition:
         return np.array([h.concavity for h in self.hulls], dtype=np.float64)
 
     @property
+    def resolved_thresholds(self) -> dict[str, float]:
+        """Object name (or "shape") -> the threshold it was cut at, for each one whose samples
+        were too sparse to resolve the asked one (``Decomposer.stop_threshold``)."""
+        if "resolved_threshold" in self.params:
+            return {"shape": self.params["resolved_threshold"]}
+        return {o["name"]: o["resolved_threshold"] for o in self.objects or [] if "resolved_threshold" in o}
+
+    @property
     def max_concavity(self) -> float:
         return float(self.concavity.max()) if self.hulls else 0.0
 

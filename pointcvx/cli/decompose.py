@@ -76,14 +76,6 @@ def check_output(out: Path, fmt: str, per_hull: bool, input_path: str, overwrite
     check_writable(main_file(out, fmt, per_hull), [input_path], overwrite)
 
 
-def resolved_thresholds(result) -> dict[str, float]:
-    """Object name (or "shape") -> the threshold it was cut at, for each one whose samples were
-    too sparse to resolve the asked one (``Decomposer.stop_threshold``)."""
-    if "resolved_threshold" in result.params:
-        return {"shape": result.params["resolved_threshold"]}
-    return {o["name"]: o["resolved_threshold"] for o in result.objects or [] if "resolved_threshold" in o}
-
-
 def summary_line(summary: dict, limits) -> str:
     """The line printed at the end: hulls, concavity, time, features, caps, output."""
     line = (f"{summary['hulls']} hulls, max concavity {summary['max_concavity']:.4f}, "
@@ -172,7 +164,7 @@ def run(args: argparse.Namespace) -> int:
         summary["removed"] = result.cloud.info["isolation"]["removed"]
     summary["noise_points"] = int(result.cloud.info.get("noise_points", 0))
     summary["threshold"] = result.params["threshold"]
-    summary["resolved_threshold"] = resolved_thresholds(result)
+    summary["resolved_threshold"] = result.resolved_thresholds
     summary["timings"] = {k: round(v, 3) for k, v in result.timings.items()}
     print(json.dumps(summary, indent=2) if args.json else summary_line(summary, limits))
     return 0

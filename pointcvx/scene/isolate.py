@@ -68,8 +68,8 @@ WALL_SPAN = 0.5
 #: At most this many walls per frame.
 MAX_WALLS = 6
 #: A depth sensor's error grows with distance: a wall's points and the points just in front of
-#: it spread over this share of the wall's distance from the sensor (a Kinect's 5 m wall is a
-#: slab 0.2 m thick), and at least the plane tolerance.
+#: it spread over this share of the wall's distance from the sensor either way (a Kinect's 5 m
+#: wall is a slab about 0.3 m thick), and at least the plane tolerance.
 WALL_NOISE = 0.03
 
 
@@ -224,14 +224,14 @@ def walls(points: np.ndarray, sensor: np.ndarray, *, frame: np.ndarray | None = 
             area = _outline_area(pts[idx[plane.inliers]], plane.normal)
             if area >= WALL_AREA * _outline_area(pts[idx[rest]], plane.normal) and _spans(
                     pts[idx[plane.inliers]], every, plane.normal):
-                wall = plane
+                wall = Plane(plane.normal, plane.offset, plane.inliers, band)
                 break
         if wall is None:
             break
         on = np.zeros(len(pts), dtype=bool)
         # the wall's band (depth noise spreads it) and whatever lies behind it
-        on[idx] = wall.distance(pts[idx]) <= band
-        found.append(Plane(wall.normal, wall.offset, on, band))
+        on[idx] = wall.distance(pts[idx]) <= wall.tolerance
+        found.append(Plane(wall.normal, wall.offset, on, wall.tolerance))
         free &= ~on
     return found
 

@@ -159,10 +159,8 @@ def _legend_of(x) -> dict[str, Any]:
         legend["noise"] = cloud.info.get("noise_points") or None
         # the threshold the sparsest object was cut at, where its samples could not resolve
         # the asked one (Decomposer.stop_threshold)
-        resolved = [o["resolved_threshold"] for o in getattr(x, "objects", None) or []
-                    if "resolved_threshold" in o] + (
-            [x.params["resolved_threshold"]] if "resolved_threshold" in x.params else [])
-        legend["resolved_threshold"] = max(resolved) if resolved else None
+        resolved = x.resolved_thresholds.values() if hasattr(x, "resolved_thresholds") else ()
+        legend["resolved_threshold"] = max(resolved, default=None)
     return legend
 
 
