@@ -108,14 +108,14 @@ def check_points(points: Any, what: str = "points", allow_empty: bool = False) -
         raise InputError(f"{what} must have shape (n, 3), got {pts.shape}")
     if len(pts) == 0 and not allow_empty:
         raise InputError(f"no {what}: the input is empty")
+    if len(pts) == 0 or np.abs(pts).max() <= MAX_COORDINATE:  # one pass: NaN compares False
+        return pts
     bad = ~np.isfinite(pts).all(axis=1)
     if bad.any():
         raise InputError(f"{int(bad.sum())} of {len(pts)} {what} have NaN or infinite coordinates")
-    far = np.abs(pts).max(axis=1) > MAX_COORDINATE if len(pts) else bad
-    if far.any():
-        raise InputError(f"{int(far.sum())} of {len(pts)} {what} lie beyond {MAX_COORDINATE:g} from the "
-                         f"origin, more than pointcvx handles in any unit: rescale the input")
-    return pts
+    far = np.abs(pts).max(axis=1) > MAX_COORDINATE
+    raise InputError(f"{int(far.sum())} of {len(pts)} {what} lie beyond {MAX_COORDINATE:g} from the "
+                     f"origin, more than pointcvx handles in any unit: rescale the input")
 
 
 def check_extent(points: np.ndarray) -> None:

@@ -20,6 +20,7 @@ from pointcvx.features.field import (
     _draw_columns,
     fit_field,
     info_nce_grad,
+    pool_info_nce_grad,
     sample_field_triplets,
 )
 from pointcvx.features.pairs import nonconvex_mask
@@ -96,6 +97,29 @@ def test_loss_and_gradients_match_torch():
     for (gw, gb), (w, b) in zip(grads, params, strict=True):
         np.testing.assert_allclose(gw, w.grad.numpy(), rtol=1e-4, atol=1e-6)
         np.testing.assert_allclose(gb, b.grad.numpy(), rtol=1e-4, atol=1e-6)
+
+
+def test_pool_loss_and_gradients_equal_the_per_triplet_ones():
+    """The fit's step (pool_info_nce_grad: negatives as pool rows, their gradients gathered by
+    one sparse product) equals info_nce_grad on the gathered features with every row's gradient
+    scattered back onto the pool, duplicates and anchors among the negatives included."""
+    rng = np.random.default_rng(2)
+    pool = rng.normal(size=(50, 32))
+    pool /= np.linalg.norm(pool, axis=1, keepdims=True)
+    positive = rng.normal(size=(12, 32))
+    positive /= np.linalg.norm(positive, axis=1, keepdims=True)
+    anchor = rng.integers(0, 50, 12)
+    negative = rng.integers(0, 50, (12, 9))
+    negative[0, :3] = negative[0, 3]  # a negative drawn several times
+    negative[1, 0] = anchor[2]  # an anchor that is another anchor's negative
+    loss, g_pool, g_pos = pool_info_nce_grad(pool, anchor, positive, negative, 0.3)
+    ref, g_a, g_p, g_n = info_nce_grad(pool[anchor], positive, pool[negative], 0.3)
+    expected = np.zeros_like(pool)
+    np.add.at(expected, anchor, g_a)
+    np.add.at(expected, negative.ravel(), g_n.reshape(-1, 32))
+    assert loss == pytest.approx(ref, rel=1e-12)
+    np.testing.assert_allclose(g_pool, expected, rtol=1e-10, atol=1e-14)
+    np.testing.assert_allclose(g_pos, g_p, rtol=1e-10, atol=1e-14)
 
 
 def test_weighted_draws_follow_the_weights():

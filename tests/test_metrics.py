@@ -93,6 +93,22 @@ def test_degenerate_hulls_never_crash(points, dim):
     assert np.isfinite(part_concavity(points, None))
 
 
+def test_a_sheet_with_points_off_it_that_the_flatness_probe_skips_is_solid():
+    """convex_hull first tests flatness on a subsample (FLAT_PROBE points); a sheet whose only
+    points off it fall between the probe's rows must still give the solid hull, and a sheet with
+    none stays flat."""
+    from pointcvx.decomposition.hull import FLAT_PROBE
+
+    rng = np.random.default_rng(0)
+    sheet = np.column_stack([rng.uniform(-1, 1, (4 * FLAT_PROBE, 2)), np.zeros(4 * FLAT_PROBE)])
+    assert convex_hull(sheet).dim == 2
+    tent = sheet.copy()
+    tent[[1, 2, 3], 2] = [0.5, -0.5, 0.25]  # the probe reads every 4th point: rows 0, 4, 8...
+    h = convex_hull(tent)
+    assert h.dim == 3 and h.volume > 0.1
+    assert hull_contains(h, tent, tol=1e-9).all()
+
+
 def test_empty_or_bad_points_raise_input_error():
     with pytest.raises(InputError):
         convex_hull(np.zeros((0, 3)))

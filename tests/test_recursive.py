@@ -75,6 +75,38 @@ def test_coarse_concavity_tracks_the_full_measure(l_decomposer):
     assert dec.concavity(bar) < 0.1
 
 
+def test_a_parts_concavity_does_not_depend_on_the_order_of_its_points(l_decomposer):
+    """A merge measures the concatenation of two parts and keeps the union sorted: both must read
+    the same (the hull's triangulation, hence its samples, would follow the order)."""
+    dec = l_decomposer
+    part = np.flatnonzero(dec.points[:, 0] < 0.3)
+    shuffled = np.random.default_rng(4).permutation(part)
+    for coarse in (False, True):
+        assert dec.measure(shuffled, coarse) == dec.measure(part, coarse)
+
+
+def test_outside_search_equals_the_definition_sample_by_sample(l_decomposer):
+    """_max_outside asks the inside test first and the surface distance only where it decides;
+    its answer is the plain definition's over every sample: the largest ``dist`` of a sample in
+    the air (outside, off the surface) or on the surface beyond the gap."""
+    from pointcvx.decomposition.concavity import SURFACE_TOL, _max_outside
+    from pointcvx.decomposition.hull import convex_hull, sample_hull_surface
+
+    dec = l_decomposer
+    solid = dec.solid
+    rng = np.random.default_rng(0)
+    for part in (np.arange(len(dec.points)), np.flatnonzero(dec.points[:, 2] < 0.0),
+                 np.flatnonzero(dec.points[:, 0] > 0.2)):
+        pts = dec.points[part]
+        hs = sample_hull_surface(convex_hull(pts), 1500, rng)
+        d = np.linalg.norm(hs[:, None] - pts[None, ::7], axis=2).min(axis=1)
+        for gap in (0.0, 0.05, 0.2):
+            on = solid.distance(hs) <= SURFACE_TOL
+            counts = np.where(on, d > gap, ~solid.contains(hs))
+            expected = float(d[counts].max()) if counts.any() else 0.0
+            assert _max_outside(solid, hs, d, gap) == expected, (len(part), gap)
+
+
 def test_duplicate_proposals_are_scored_once():
     cloud = as_cloud(l_block(), n_points=4000, seed=0)
     from pointcvx.solid import solid_for

@@ -88,17 +88,23 @@ def _max_outside(solid, samples: np.ndarray, dist: np.ndarray, surface_gap: floa
     *another* part's face: the hull spreads over it. (The inside test of a point on the surface
     depends on the face's orientation, so surface samples are told apart by distance first.)
     Tests samples in decreasing order of ``dist``, in growing batches, and stops at the first
-    batch holding one that counts: exact, and cheap unless most far samples are inside.
+    batch holding one that counts: exact, and cheap unless most far samples are inside. The
+    inside test (ray parity) comes first, being several times cheaper than the distance to the
+    surface, which is then asked only where it decides: a far sample (beyond ``surface_gap``)
+    reported outside counts whether it is on the surface or in the air, and a near one reported
+    inside counts in neither case.
     """
     order = np.argsort(-dist)
     s, step = 0, 64
     while s < len(order):
         chunk = order[s : s + step]
-        on_surface = solid.distance(samples[chunk]) <= tol
-        counts = on_surface & (dist[chunk] > surface_gap)
-        air = np.flatnonzero(~on_surface)
-        if len(air):
-            counts[air] = ~solid.contains(samples[chunk[air]])
+        outside = ~solid.contains(samples[chunk])
+        far = dist[chunk] > surface_gap
+        counts = far & outside
+        ask = np.flatnonzero(far != outside)  # far and inside, or near and outside
+        if len(ask):
+            on_surface = solid.distance(samples[chunk[ask]]) <= tol
+            counts[ask] = np.where(on_surface, far[ask], outside[ask])
         if counts.any():
             return float(dist[chunk[int(np.argmax(counts))]])
         s, step = s + step, 4 * step

@@ -245,6 +245,10 @@ class Decomposer:
         samples.
         """
         self.evaluations += 1
+        # A function of the set of points, not of their order (the hull's triangulation, hence
+        # its samples, follows the order): a merge measures the pair's concatenation and keeps
+        # it sorted.
+        indices = np.sort(indices)
         n_samples = min(self.concavity_samples, self.rank_samples) if coarse else self.concavity_samples
         cut = None
         n_part = len(indices)
@@ -271,7 +275,7 @@ class Decomposer:
         near = self.points[near]
         if len(near):
             # Points at least a hair inside the hull (not those on a shared cut face).
-            swallowed = near[hull_contains(hull, near, tol=-1e-3)]
+            swallowed = near[hull_contains(hull, near, tol=-1e-3, dtype=np.float32)]
             if len(swallowed):
                 pts = np.concatenate([pts, swallowed])
         # The gaps between the part's samples: the cloud's, wider in a coarse subsample.

@@ -84,27 +84,23 @@ def nonconvex_mask(solid: Solid, anchors: np.ndarray, normals: np.ndarray, cands
     normal) is non-convex without a ray; one nearly in the plane (a flat neighbourhood) is tested
     by its ray like the others, since a segment along a flat face stays in the closed solid.
     """
-    a, c = cands.shape[:2]
-    anchor = np.repeat(anchors, c, axis=0)
-    normal = np.repeat(normals, c, axis=0)
-    target = cands.reshape(-1, 3)
-    d = target - anchor
-    length = np.linalg.norm(d, axis=1)
+    d = cands - anchors[:, None, :]  # (a, c, 3), broadcast rather than repeated
+    length = np.sqrt(np.einsum("acj,acj->ac", d, d))
     near = length <= 4 * offset  # the anchor itself, or a point too close to tell
-    cos = np.einsum("ij,ij->i", d, normal) / np.maximum(length, 1e-12)
+    cos = np.einsum("acj,aj->ac", d, normals) / np.maximum(length, 1e-12)
     facing = cos < tangent_tol
     out = ~facing & ~near
-    idx = np.flatnonzero(facing & ~near)
-    if len(idx):
+    rows, cols = np.nonzero(facing & ~near)
+    if len(rows):
         # Shoot from just below the anchor's surface towards the candidate.
-        origins = anchor[idx] - offset * normal[idx]
-        dv = target[idx] - origins
-        dist = np.linalg.norm(dv, axis=1)
+        origins = anchors[rows] - offset * normals[rows]
+        dv = cands[rows, cols] - origins
+        dist = np.sqrt(np.einsum("ij,ij->i", dv, dv))
         t = solid.first_hit(origins, dv / dist[:, None])
         # The ray must reach the candidate, which sits on the surface: hits just before it (a
         # grazing ray meeting the candidate's own face) do not count.
-        out[idx] = t < dist * 0.99 - 4 * offset
-    return out.reshape(a, c)
+        out[rows, cols] = t < dist * 0.99 - 4 * offset
+    return out
 
 
 def anchor_candidates(solid: Solid, points: np.ndarray, normals: np.ndarray, rng: np.random.Generator,

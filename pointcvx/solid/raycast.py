@@ -76,7 +76,9 @@ class Solid:
         from ..syslibs import import_open3d
         o3d = import_open3d()
 
-        rays = np.concatenate([origins, dirs], axis=1).astype(np.float32)
+        rays = np.empty((len(origins), 6), np.float32)  # straight to float32: no float64 copy
+        rays[:, :3] = origins
+        rays[:, 3:] = dirs
         return o3d.core.Tensor(rays)
 
     def contains(self, points: np.ndarray, chunk: int = 1 << 20) -> np.ndarray:
