@@ -275,13 +275,8 @@ def test_outward_test_on_a_triangle_soup_works_on_a_bounded_sample(tmp_path, mon
     assert f"from {len(sample)} of {n} faces" in method and len(out.faces) == n
 
 
-def test_a_sampled_outward_test_still_finds_the_outside(monkeypatch):
-    # The dragon cut into 27 loose pieces, each wound at random: with a tenth of its faces
-    # scored (round the pieces), every piece still turns outward.
-    from scipy.spatial import cKDTree
-
-    from pointcvx.io import mesh as M
-
+def _loose_dragon():
+    """The dragon cut into 27 loose pieces, each wound at random: (the true mesh, the pieces)."""
     truth = _true_mesh("scans/dragon_50k.ply")
     centres = truth.triangles_center
     cell = np.floor((centres - truth.bounds[0]) / (truth.extents + 1e-9) * 3).astype(int)
@@ -295,10 +290,44 @@ def test_a_sampled_outward_test_still_finds_the_outside(monkeypatch):
         if rng.random() < 0.5:
             piece.invert()
         pieces.append(piece)
-    bad = trimesh.util.concatenate(pieces)
+    return truth, trimesh.util.concatenate(pieces)
+
+
+def _outward_share(truth, cloud) -> float:
+    from scipy.spatial import cKDTree
+
+    _, nearest = cKDTree(truth.triangles_center).query(cloud.points)
+    return float((np.einsum("ij,ij->i", truth.face_normals[nearest], cloud.normals) > 0).mean())
+
+
+def test_a_sampled_outward_test_still_finds_the_outside(monkeypatch):
+    # With a tenth of its faces scored (round the pieces), every piece still turns outward.
+    from pointcvx.io import mesh as M
+
+    truth, bad = _loose_dragon()
     monkeypatch.setattr(M, "ORIENT_FACES", len(bad.faces) // 10)
     cloud = cloud_from_mesh(bad, n_points=5000, seed=3)
     assert f"from {len(bad.faces) // 10} of {len(bad.faces)} faces" in cloud.info["normals"]
     assert cloud.info["components"] >= 27
-    _, nearest = cKDTree(centres).query(cloud.points)
-    assert (np.einsum("ij,ij->i", truth.face_normals[nearest], cloud.normals) > 0).mean() > 0.98
+    assert _outward_share(truth, cloud) > 0.98
+
+
+def test_the_pieces_votes_come_from_a_sample_and_conflicted_faces_all_score(monkeypatch):
+    # Consistently wound pieces vote with ORIENT_VOTE_FACES faces round the pieces; faces of a
+    # piece that cannot be wound consistently are all scored, each deciding its own side.
+    from pointcvx.io import mesh as M
+
+    truth, bad = _loose_dragon()
+    monkeypatch.setattr(M, "ORIENT_VOTE_FACES", 3000)
+    cloud = cloud_from_mesh(bad, n_points=5000, seed=3)
+    assert f"from 3000 of {len(bad.faces)} faces" in cloud.info["normals"]
+    assert _outward_share(truth, cloud) > 0.98
+    labels = np.repeat(np.arange(4), 50)
+    conflicted = labels == 2
+    sample = M.vote_sample(None, labels, conflicted, seed=0)
+    assert sample is None  # under the cap: every face scores
+    monkeypatch.setattr(M, "ORIENT_VOTE_FACES", 30)
+    sample = M.vote_sample(None, labels, conflicted, seed=0)
+    assert set(np.flatnonzero(conflicted)) <= set(sample) and len(sample) == 80
+    assert set(labels[sample]) == {0, 1, 2, 3}  # every piece votes
+    np.testing.assert_array_equal(sample, M.vote_sample(None, labels, conflicted, seed=0))

@@ -247,6 +247,39 @@ def _room_frame(rng):
     return pts, {k: np.arange(ends[i], ends[i + 1]) for i, k in enumerate(parts)}
 
 
+def test_an_oblique_walls_box_is_the_wall(rng):
+    """The room corner seen by a sensor turned 35 degrees and pitched 20 degrees down: the back
+    wall's static box lies on its plane over the wall itself (4 m x 3 m), right-handed with its
+    normal third, holding the wall's points, where a box over the points' coordinate bounds
+    would stand out of the wall."""
+    from pointcvx.export import wall_boxes
+    from pointcvx.export.robots import up_rotation
+    from pointcvx.scene import FRAME_UP
+
+    pts, part = _room_frame(rng)
+    c, s = np.cos(np.radians(35)), np.sin(np.radians(35))
+    p, q = np.cos(np.radians(20)), np.sin(np.radians(20))
+    turn = np.array([[1, 0, 0], [0, p, -q], [0, q, p]]) @ np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
+    pts = pts @ turn.T
+    found = isolate(pts, up=FRAME_UP, sensor=np.zeros(3))
+    report = found.report()["walls"]
+    back = int(np.argmax([w["inliers"] for w in report]))
+    box = wall_boxes(report)[back]
+    normal = np.asarray(report[back]["normal"])
+    assert abs(normal @ (turn @ [0, 0, -1])) > 0.999
+    assert np.linalg.det(box.frame) == pytest.approx(1.0) and np.allclose(box.frame[:, 2], normal)
+    assert sorted(box.extents[:2]) == pytest.approx([3.0, 4.0], rel=0.03)
+    # (the wall's points by the floor went with the floor's band: not the wall's to hold)
+    above = part["back"][(pts[part["back"]] @ turn)[:, 1] < 1.4]
+    local = (pts[above] - box.centre) @ box.frame
+    assert (np.abs(local[:, :2]) <= box.extents[:2] / 2 + 1e-6).all()
+    # the box of the coordinate bounds, on the same plane, in the frame the writers used before
+    lo, hi = np.asarray(report[back]["bounds"])
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    uv = corners @ up_rotation(normal).T[:, :2]
+    assert np.prod(uv.max(axis=0) - uv.min(axis=0)) > 1.1 * np.prod(box.extents[:2])
+
+
 def test_a_depth_frames_walls_are_removed_and_free_what_stands_against_them(rng):
     """The room corner's back and side walls bound the view (the sensor and everything else on
     one side): they are walls, removed and reported with their planes; the cabinet's front, with
@@ -256,7 +289,7 @@ def test_a_depth_frames_walls_are_removed_and_free_what_stands_against_them(rng)
     pts, part = _room_frame(rng)
     found = isolate(pts, up=FRAME_UP, sensor=np.zeros(3))
     assert found.support is not None and found.support.normal @ FRAME_UP > 0.99
-    normals = sorted(tuple(np.round(plane.normal).astype(int)) for plane, _ in found.walls)
+    normals = sorted(tuple(np.round(plane.normal).astype(int)) for plane, *_ in found.walls)
     assert normals == [(-1, 0, 0), (0, 0, -1)]  # both face the sensor
     assert found.removed["walls"] >= 0.95 * (len(part["back"]) + len(part["side"]))
     # the cabinet's back face lies in the wall's band, the box's bottom in the floor's (both

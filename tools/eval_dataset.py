@@ -150,7 +150,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--max-hulls", type=int, default=64)
     ap.add_argument("--split", default="auto")
     ap.add_argument("--blend", type=float, default=1.0)
-    ap.add_argument("--features", default="optimize")
+    ap.add_argument("--features", default="auto",
+                    help="as pointcvx decompose (auto: optimisation, the model on splats)")
     ap.add_argument("--model", default=None, help="checkpoint for --features model")
     ap.add_argument("--views", type=int, default=1, help="model views (test-time ensemble)")
     ap.add_argument("--jobs", type=int, default=2)

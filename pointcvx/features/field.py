@@ -115,7 +115,11 @@ class FourierField:
         """(n, dim) unit features of (n, 3) points, the layers' inputs and outputs (list of
         (n, d) float32: the encoding, then each layer after its ReLU) and the (n, 1) norms of the
         raw outputs, the last two kept for :meth:`_backward`."""
-        h = self._encode(xyz)
+        return self._forward_encoded(self._encode(xyz))
+
+    def _forward_encoded(self, h: np.ndarray):
+        """:meth:`_forward` from the (n, 3 + 6 * n_freqs) encodings of the points (a fit
+        encodes its pool once, not at every step)."""
         acts = [h]
         for i, (w, b) in enumerate(self.params):
             h = h @ w
@@ -235,6 +239,7 @@ def fit_field(triplets: Triplets, *, dim: int = 32, steps: int = FAST_STEPS, bat
     moments = [[(np.zeros_like(p), np.zeros_like(p)) for p in layer] for layer in field.params]
     b1, b2 = betas
     with threadpool_limits(1):
+        enc_pool, enc_pos = field._encode(pool), field._encode(positive)
         for step in range(steps):
             rate = lr * 0.5 * (1.0 + math.cos(math.pi * step / steps))
             pick = rng.integers(0, len(anchor), min(batch, len(anchor)))
@@ -242,7 +247,7 @@ def fit_field(triplets: Triplets, *, dim: int = 32, steps: int = FAST_STEPS, bat
             neg = np.take_along_axis(negative[pick], cols, 1)
             used, inv = np.unique(np.concatenate([anchor[pick], neg.ravel()]), return_inverse=True)
             a_idx, n_idx = inv[: len(pick)], inv[len(pick) :].reshape(neg.shape)
-            feats, acts, norm = field._forward(np.concatenate([pool[used], positive[pick]]))
+            feats, acts, norm = field._forward_encoded(np.concatenate([enc_pool[used], enc_pos[pick]]))
             f_pool, f_pos = feats[: len(used)], feats[len(used) :]
             loss, g_pool, g_p = pool_info_nce_grad(f_pool, a_idx, f_pos, n_idx, tau)
             grad = np.concatenate([g_pool, g_p])

@@ -209,11 +209,41 @@ def scored_faces(mesh, n_rays: int, seed: int, labels: np.ndarray | None = None)
     rng = np.random.default_rng([seed, 2])
     if labels is None:
         return np.sort(rng.choice(f, m, replace=False))
+    return round_the_pieces(np.arange(f), labels, m, rng)
+
+
+def round_the_pieces(faces: np.ndarray, labels: np.ndarray, m: int, rng: np.random.Generator) -> np.ndarray:
+    """(m,) int sorted: a seeded sample of the (k,) int ``faces`` ((k,) int ``labels``, their
+    pieces) that goes round the pieces: every piece gets its first face before any gets a
+    second, so small pieces vote too."""
+    k = len(faces)
     grouped = np.argsort(labels, kind="stable")
-    grouped = grouped[np.lexsort((rng.random(f), labels[grouped]))]  # by piece, random within
+    grouped = grouped[np.lexsort((rng.random(k), labels[grouped]))]  # by piece, random within
     first = np.searchsorted(labels[grouped], labels[grouped])
-    rank = np.arange(f) - first  # 0 for each piece's first face in that order, 1 for its second...
-    return np.sort(grouped[np.lexsort((rng.random(f), rank))[:m]])
+    rank = np.arange(k) - first  # 0 for each piece's first face in that order, 1 for its second...
+    return np.sort(faces[grouped[np.lexsort((rng.random(k), rank))[:m]]])
+
+
+#: Faces of consistently wound pieces whose outward scores vote on their pieces' sides; a larger
+#: mesh's votes come from a seeded sample of them round the pieces (:func:`vote_sample`). A
+#: piece's area-weighted vote does not need 100,000 faces, and the rays cost 1-3 s of loading
+#: such a mesh. Of the 16 meshes of vhacd61 and dev/ over 20,000 faces that are not watertight,
+#: 10 came out face for face the same and 6 differ in 1 to 55 of 45,000-125,000 faces: single
+#: faces whose own rays sit near the flip threshold (the rays follow the sample).
+ORIENT_VOTE_FACES = 20_000
+
+
+def vote_sample(sample: np.ndarray | None, labels: np.ndarray, conflicted: np.ndarray,
+                seed: int) -> np.ndarray | None:
+    """The faces the outward test scores: ``sample`` (None for all, see :func:`scored_faces`)
+    with the faces of consistently wound pieces thinned to :data:`ORIENT_VOTE_FACES`. Faces of
+    conflicted pieces ((f,) bool ``conflicted``) stay: each decides its own side by its score."""
+    faces = np.arange(len(labels)) if sample is None else sample
+    free = faces[~conflicted[faces]]
+    if len(free) <= ORIENT_VOTE_FACES:
+        return sample
+    keep = round_the_pieces(free, labels[free], ORIENT_VOTE_FACES, np.random.default_rng([seed, 3]))
+    return np.sort(np.concatenate([keep, faces[conflicted[faces]]]))
 
 
 def piece_volumes(mesh, labels: np.ndarray) -> np.ndarray:
@@ -279,7 +309,7 @@ def orient_outward(mesh, n_rays: int = 8, seed: int = 0) -> tuple[object, int, s
     sign, labels, conflicted = winding_signs(mesh)
     faces = np.asarray(mesh.faces).copy()
     wound = trimesh.Trimesh(np.asarray(mesh.vertices), _flip(faces, sign < 0), process=False)
-    sample = scored_faces(wound, n_rays, seed, labels)
+    sample = vote_sample(scored_faces(wound, n_rays, seed, labels), labels, conflicted, seed)
     method = f"ray parity ({n_rays} rays per side)"
     if sample is None:
         scores = face_outward_scores(wound, n_rays=n_rays, seed=seed)

@@ -85,8 +85,9 @@ class Isolation:
         "clutter").
     pieces : int, separate pieces kept.
     up : (3,) float or None, the support's normal (the up axis it implies).
-    walls : list of (Plane, (2, 3) float), a depth frame's walls, oriented towards the sensor,
-        each with the box (min and max corners) of its points.
+    walls : list of (Plane, (2, 3) float, dict), a depth frame's walls, oriented towards the
+        sensor, each with the box (min and max corners) of its points and its face
+        (:func:`wall_face`).
     """
 
     keep: np.ndarray
@@ -102,8 +103,8 @@ class Isolation:
         if self.support is not None:
             out["support_plane"] = self.support.as_dict()
         if self.walls:
-            out["walls"] = [{**plane.as_dict(), "bounds": np.round(box, 9).tolist()}
-                            for plane, box in self.walls]
+            out["walls"] = [{**plane.as_dict(), "bounds": np.round(box, 9).tolist(), "face": face}
+                            for plane, box, face in self.walls]
         if self.up is not None:
             out["up"] = np.round(self.up, 6).tolist()
         return out
@@ -198,6 +199,42 @@ def _spans(wall: np.ndarray, frame: np.ndarray, normal: np.ndarray) -> bool:
     return bool(np.all(np.ptp(wall @ in_plane.T, axis=0) >= WALL_SPAN * np.ptp(frame @ in_plane.T, axis=0)))
 
 
+def wall_face(points: np.ndarray, plane: Plane) -> dict:
+    """The least-area rectangle on ``plane`` that holds its (n, 3) ``points`` projected onto it
+    (one side along an edge of their convex hull, rotating calipers): {"center": (3,), "axes":
+    (2, 3) unit, in-plane, the second the normal x the first, "extents": (2,) full side
+    lengths}, JSON-able. A wall's box is built on it: the box of the points' coordinates would
+    stand out of an oblique wall."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    n = plane.normal / np.linalg.norm(plane.normal)
+    flat = points - np.outer(plane.distance(points), n)  # onto the plane
+    mean = flat.mean(axis=0)
+    a = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
+    a /= np.linalg.norm(a)
+    basis = np.stack([a, np.cross(n, a)])
+    uv = (flat - mean) @ basis.T
+    try:
+        ring = uv[ConvexHull(uv).vertices]
+    except QhullError:  # collinear or too few: any rectangle of the coordinates will do
+        ring = uv
+    edges = np.roll(ring, -1, axis=0) - ring
+    angles = np.arctan2(edges[:, 1], edges[:, 0])
+    best = None
+    for t in angles:
+        rot = np.array([[np.cos(t), np.sin(t)], [-np.sin(t), np.cos(t)]])  # rows: the sides
+        proj = ring @ rot.T
+        lo, hi = proj.min(axis=0), proj.max(axis=0)
+        if best is None or np.prod(hi - lo) < best[0]:
+            best = (float(np.prod(hi - lo)), rot, lo, hi)
+    _, rot, lo, hi = best
+    u = rot[0] @ basis
+    v = np.cross(n, u)
+    center = mean + ((lo + hi) / 2) @ np.stack([u, rot[1] @ basis])
+    return {"center": np.round(center, 9).tolist(), "axes": np.round(np.stack([u, v]), 9).tolist(),
+            "extents": np.round(hi - lo, 9).tolist()}
+
+
 def walls(points: np.ndarray, sensor: np.ndarray, *, frame: np.ndarray | None = None,
           seed: int = 0) -> list[Plane]:
     """The walls of a depth frame's (n, 3) ``points`` seen from (3,) ``sensor``, largest first,
@@ -283,8 +320,8 @@ def isolate(points: np.ndarray, mode: str = "all", *, crop: np.ndarray | None = 
     if sensor is not None and len(idx):
         for wall in walls(pts[idx], np.asarray(sensor, dtype=np.float64), frame=pts[framed],
                           seed=seed):
-            box = np.stack([pts[idx[wall.inliers]].min(axis=0), pts[idx[wall.inliers]].max(axis=0)])
-            result.walls.append((wall, box))
+            on = pts[idx[wall.inliers]]
+            result.walls.append((wall, np.stack([on.min(axis=0), on.max(axis=0)]), wall_face(on, wall)))
             keep[idx[wall.inliers]] = False
         result.removed["walls"] = int(len(idx) - keep[idx].sum())
         idx = idx[keep[idx]]
