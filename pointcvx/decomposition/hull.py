@@ -197,9 +197,11 @@ def convex_hull(points) -> Polytope:
     # A subsample that spans three dimensions proves the points do; only one that looks flat
     # (or a hull qhull refuses) needs the SVD of the points' usual sample (every point up to
     # 20,000): at 10,000 points that SVD cost as much as the rest of the check.
-    sv, vt, flat_tol = spread(max(1, len(pts) // FLAT_PROBE))
-    if len(pts) < 4 or sv[2] <= flat_tol:
-        sv, vt, flat_tol = spread(max(1, len(pts) // 20000))
+    probe, full = max(1, len(pts) // FLAT_PROBE), max(1, len(pts) // 20000)
+    sv, vt, flat_tol = spread(probe)
+    if (len(pts) < 4 or sv[2] <= flat_tol) and probe != full:
+        probe = full
+        sv, vt, flat_tol = spread(full)
     if len(pts) < 4 or sv[2] <= flat_tol:
         if sv[1] <= flat_tol:
             return _line_hull(pts)
@@ -209,7 +211,7 @@ def convex_hull(points) -> Polytope:
             return _solid_hull(pts, options)
         except QhullError as exc:
             log.debug("qhull failed with options %s: %s", options, first_line(exc))
-    return _flat_hull(pts, center, spread(max(1, len(pts) // 20000))[1][2])
+    return _flat_hull(pts, center, (vt if probe == full else spread(full)[1])[2])
 
 
 def signed_plane_distance(hull: Polytope, points: np.ndarray, dtype=np.float64) -> np.ndarray:

@@ -125,8 +125,7 @@ def scene_walls(result) -> list[StaticBox]:
     """A depth frame's walls (``result.cloud.info["isolation"]["walls"]``) as static boxes, input
     units: each box's face is the wall's face (the rectangle on its plane that holds its points,
     :func:`pointcvx.scene.isolate.wall_face`), and the box is as thick as the wall's band (at
-    least 1 % of its width), behind the face. (A report without faces, from before they were
-    recorded, gets the box of its points' bounds projected on the plane.)"""
+    least 1 % of its width), behind the face."""
     if not result.objects:
         return []
     return wall_boxes(result.cloud.info.get("isolation", {}).get("walls", []))
@@ -137,20 +136,10 @@ def wall_boxes(walls: list[dict]) -> list[StaticBox]:
     boxes = []
     for wall in walls:
         normal = np.asarray(wall["normal"], dtype=np.float64)
-        if "face" in wall:
-            axes = np.asarray(wall["face"]["axes"], dtype=np.float64)
-            frame = np.column_stack([axes[0], axes[1], normal])
-            size = np.asarray(wall["face"]["extents"], dtype=np.float64)
-            face = np.asarray(wall["face"]["center"], dtype=np.float64)
-        else:
-            frame = up_rotation(normal).T  # columns: two in-plane axes, then the normal
-            lo, hi = np.asarray(wall["bounds"], dtype=np.float64)
-            corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1])
-                                for z in (lo[2], hi[2])])
-            uv = corners @ frame[:, :2]
-            a, b = uv.min(axis=0), uv.max(axis=0)
-            size = b - a
-            face = frame[:, :2] @ ((a + b) / 2) + float(wall["offset"]) * normal
+        axes = np.asarray(wall["face"]["axes"], dtype=np.float64)
+        frame = np.column_stack([axes[0], axes[1], normal])  # the box's axes: the face's, the normal
+        size = np.asarray(wall["face"]["extents"], dtype=np.float64)
+        face = np.asarray(wall["face"]["center"], dtype=np.float64)
         thick = max(2.0 * float(wall["tolerance"]), 0.01 * float(max(size.max(), 1e-9)))
         boxes.append(StaticBox(face - 0.5 * thick * normal, frame, np.array([*size, thick])))
     return boxes

@@ -296,7 +296,8 @@ def orient_outward(mesh, n_rays: int = 8, seed: int = 0) -> tuple[object, int, s
     vote. In pieces that cannot be wound consistently, faces whose own rays say strongly that
     they point inward are flipped alone. The work is bounded (:func:`scored_faces`): on very
     large meshes, and on soups of overlapping triangles that every ray crosses hundreds of
-    times, a seeded sample of faces votes. The input mesh is not modified.
+    times, a seeded sample of faces votes; and consistently wound pieces vote with at most
+    :data:`ORIENT_VOTE_FACES` of their faces (:func:`vote_sample`). The input mesh is not modified.
     """
     import trimesh
 

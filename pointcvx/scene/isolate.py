@@ -210,9 +210,7 @@ def wall_face(points: np.ndarray, plane: Plane) -> dict:
     n = plane.normal / np.linalg.norm(plane.normal)
     flat = points - np.outer(plane.distance(points), n)  # onto the plane
     mean = flat.mean(axis=0)
-    a = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
-    a /= np.linalg.norm(a)
-    basis = np.stack([a, np.cross(n, a)])
+    basis = np.stack(_plane_basis(n))
     uv = (flat - mean) @ basis.T
     try:
         ring = uv[ConvexHull(uv).vertices]
