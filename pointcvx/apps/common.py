@@ -16,11 +16,15 @@ SHAPE_SUFFIXES = frozenset({
 
 
 def limit_threads(threads: int | None) -> None:
-    """Fix this process's BLAS and torch thread counts (None or 0: leave them)."""
+    """Fix this process's BLAS, torch and worker (:mod:`pointcvx.workers`) thread counts
+    (None or 0: leave them)."""
     if not threads:
         return
     from threadpoolctl import threadpool_limits
 
+    from ..workers import set_threads
+
+    set_threads(int(threads))
     threadpool_limits(int(threads))
     if "torch" in sys.modules:  # torch reads its own setting; set it once it is imported
         sys.modules["torch"].set_num_threads(int(threads))

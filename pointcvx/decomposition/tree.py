@@ -26,6 +26,7 @@ from scipy.spatial import cKDTree
 
 from ..errors import InputError
 from ..options import SPLIT_METHODS
+from ..workers import pmap, threads
 from .concavity import GAP_SPACINGS, part_concavity, sample_spacing
 from .hull import convex_hull, hull_contains
 from .kmeans import nearest_centre, two_means
@@ -230,6 +231,12 @@ class Decomposer:
         """Concavity of the part made of the points ``indices`` (see :meth:`measure`)."""
         return self.measure(indices, coarse)[0]
 
+    def measure_all(self, parts: list[np.ndarray], coarse: bool = False) -> list[tuple[float, float]]:
+        """:meth:`measure` of each of ``parts`` (index arrays), on the worker threads
+        (:func:`pointcvx.workers.pmap`): the same numbers as one at a time."""
+        self.evaluations += len(parts)
+        return pmap(lambda idx: self._measure(idx, coarse), parts)
+
     def measure(self, indices: np.ndarray, coarse: bool = False) -> tuple[float, float]:
         """(concavity, volume of the convex hull) of the part made of the points ``indices``.
 
@@ -245,6 +252,11 @@ class Decomposer:
         samples.
         """
         self.evaluations += 1
+        return self._measure(indices, coarse)
+
+    def _measure(self, indices: np.ndarray, coarse: bool) -> tuple[float, float]:
+        """:meth:`measure` without the count: a pure function of its arguments, safe to call
+        from several threads at once."""
         # A function of the set of points, not of their order (the hull's triangulation, hence
         # its samples, follows the order): a merge measures the pair's concatenation and keeps
         # it sorted.
@@ -339,21 +351,24 @@ class Decomposer:
         idx = node.indices
         if len(idx) < 2 * MIN_PART_POINTS:
             return None
-        scored = []
+        sides = []
         for side, min_size in self._proposals(idx, self.seed + node_id):
             if side.sum() < min_size or (~side).sum() < min_size:
                 continue
             if any(np.count_nonzero(side != other) <= 0.005 * len(idx)
-                   or np.count_nonzero(side == other) <= 0.005 * len(idx) for _, other in scored):
+                   or np.count_nonzero(side == other) <= 0.005 * len(idx) for other in sides):
                 continue  # (nearly) a proposal already scored
-            scored.append((split_score(self.measure(idx[~side], coarse=True),
-                                       self.measure(idx[side], coarse=True)), side))
-        if not scored:
+            sides.append(side)
+        if not sides:
             return None
+        rough = self.measure_all([part for side in sides for part in (idx[~side], idx[side])], coarse=True)
+        scored = [(split_score(rough[2 * k], rough[2 * k + 1]), side) for k, side in enumerate(sides)]
         # The best coarse proposals get the full measure; the best of those is kept.
+        best_sides = [side for _, side in sorted(scored, key=lambda item: item[0])[: self.refine]]
+        full = self.measure_all([part for side in best_sides for part in (idx[~side], idx[side])])
         best = None
-        for _, side in sorted(scored, key=lambda item: item[0])[: self.refine]:
-            (ca, va), (cb, vb) = self.measure(idx[~side]), self.measure(idx[side])
+        for k, side in enumerate(best_sides):
+            (ca, va), (cb, vb) = full[2 * k], full[2 * k + 1]
             score = split_score((ca, va), (cb, vb))
             if best is None or score < best[0]:
                 best = (score, side, ca, cb)
@@ -449,9 +464,11 @@ class Decomposer:
         _, nearest = cKDTree(self.points[kept]).query(self.points[moved])
         to = owner[nearest]
         parts, conc = [parts[k] for k in keep], [conc[k] for k in keep]
-        for j in np.unique(to):
+        grown = np.unique(to)
+        for j in grown:
             parts[j] = np.sort(np.concatenate([parts[j], moved[to == j]]))
-            conc[j] = self.concavity(parts[j])
+        for j, (c, _) in zip(grown, self.measure_all([parts[j] for j in grown]), strict=True):
+            conc[j] = c
         log.debug("absorbed %d stray parts (%d points)", len(stray), len(moved))
         return parts, conc
 
@@ -480,17 +497,23 @@ class Decomposer:
             def joint(pair: tuple[int, int]) -> np.ndarray:
                 return np.concatenate([parts[pair[0]], parts[pair[1]]])
 
-            for pair in sorted(pairs - rough.keys()):
-                rough[pair] = self.concavity(joint(pair), coarse=True)
+            new = sorted(pairs - rough.keys())
+            for pair, (c, _) in zip(new, self.measure_all([joint(p) for p in new], coarse=True), strict=True):
+                rough[pair] = c
             # Candidates in order of their coarse estimate; the first whose full measure is
             # under the threshold is merged. Pairs whose estimate is far above it (beyond the
             # estimate's own error, see coarse_margin) are never measured in full.
             chosen = None
             size = {p: len(parts[p[0]]) + len(parts[p[1]]) for p in pairs}
             hopeful = [p for p in pairs if rough[p] <= 1.5 * threshold + self.coarse_margin(size[p])]
-            for pair in sorted(hopeful, key=lambda p: (rough[p], p)):
+            order = sorted(hopeful, key=lambda p: (rough[p], p))
+            for k, pair in enumerate(order):
                 if pair not in full:
-                    full[pair] = self.concavity(joint(pair))
+                    # This pair and the next unmeasured ones, one per thread: a pair's measure
+                    # stays valid until one of its parts merges, so those ahead are kept.
+                    ahead = [p for p in order[k:] if p not in full][: threads()]
+                    for p, (c, _) in zip(ahead, self.measure_all([joint(q) for q in ahead]), strict=True):
+                        full[p] = c
                 if full[pair] <= threshold:
                     chosen = pair
                     break

@@ -1,0 +1,81 @@
+"""Threads for independent pieces of one decomposition: the concavity measures of a split's
+proposals and of a merge's candidate pairs, the row chunks of the fit's steps.
+
+Each piece is a pure function of its input (its own seeded samples, no shared state), so the
+results are the same with one thread or several; only the time changes. The heavy parts of a
+piece (Qhull, NumPy's array loops and single-threaded BLAS) run without Python's lock, so two
+threads measure two parts in 0.55x the time of one (docs/benchmarks.md, "Two cores").
+
+How many: :func:`set_threads` (``pointcvx batch`` and ``bench`` workers, from their thread
+share), else ``OMP_NUM_THREADS`` when set (the usual way to keep a process to one core), else
+the CPUs this process may run on, at most :data:`MAX_THREADS`.
+"""
+
+from __future__ import annotations
+
+import os
+import threading
+from collections.abc import Callable, Iterable
+from concurrent.futures import ThreadPoolExecutor
+from typing import TypeVar
+
+T = TypeVar("T")
+R = TypeVar("R")
+
+#: The most threads used by default (a split has a handful of proposals, a merge some dozens of
+#: pairs: more threads than pieces only wait).
+MAX_THREADS = 8
+
+_setting: int | None = None
+_pool: tuple[int, int, ThreadPoolExecutor] | None = None  # (pid, threads, executor)
+_local = threading.local()
+
+
+def set_threads(threads: int | None) -> None:
+    """Use at most ``threads`` threads (None: the default of the module docstring)."""
+    global _setting
+    _setting = None if threads is None else max(1, int(threads))
+
+
+def threads() -> int:
+    """How many threads :func:`pmap` uses now (1: it runs in the caller)."""
+    if _setting is not None:
+        return _setting
+    env = os.environ.get("OMP_NUM_THREADS", "").strip()
+    if env.isdigit() and int(env) > 0:
+        return min(int(env), MAX_THREADS)
+    try:
+        cpus = len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        cpus = os.cpu_count() or 1
+    return max(1, min(cpus, MAX_THREADS))
+
+
+def _executor(n: int) -> ThreadPoolExecutor:
+    """The process's pool of ``n`` threads (a new one after a fork: threads do not survive it)."""
+    global _pool
+    pid = os.getpid()
+    if _pool is None or _pool[0] != pid or _pool[1] != n:
+        _pool = (pid, n, ThreadPoolExecutor(n, thread_name_prefix="pointcvx"))
+    return _pool[2]
+
+
+def _in_worker(fn: Callable[[T], R]) -> Callable[[T], R]:
+    def run(item: T) -> R:
+        _local.inside = True
+        try:
+            return fn(item)
+        finally:
+            _local.inside = False
+    return run
+
+
+def pmap(fn: Callable[[T], R], items: Iterable[T]) -> list[R]:
+    """``[fn(x) for x in items]``, the calls spread over :func:`threads` threads, results in
+    order. The first exception raised by a call is raised here. Serial with one thread, one
+    item, or when called from one of the pool's own threads (a nested map would wait on itself)."""
+    items = list(items)
+    n = min(threads(), len(items))
+    if n <= 1 or getattr(_local, "inside", False):
+        return [fn(x) for x in items]
+    return list(_executor(threads()).map(_in_worker(fn), items))
