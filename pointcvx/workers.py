@@ -60,22 +60,40 @@ def _executor(n: int) -> ThreadPoolExecutor:
     return _pool[2]
 
 
-def _in_worker(fn: Callable[[T], R]) -> Callable[[T], R]:
-    def run(item: T) -> R:
-        _local.inside = True
-        try:
-            return fn(item)
-        finally:
-            _local.inside = False
-    return run
-
-
 def pmap(fn: Callable[[T], R], items: Iterable[T]) -> list[R]:
-    """``[fn(x) for x in items]``, the calls spread over :func:`threads` threads, results in
-    order. The first exception raised by a call is raised here. Serial with one thread, one
-    item, or when called from one of the pool's own threads (a nested map would wait on itself)."""
+    """``[fn(x) for x in items]``, the calls spread over :func:`threads` threads (the caller and
+    ``threads() - 1`` of the pool's, each taking the next item when it is free), results in
+    order. The exception of the first item that raised is raised here, after every started call
+    has returned. Serial with one thread, one item, or inside another map (a nested map would
+    wait on its own pool)."""
     items = list(items)
     n = min(threads(), len(items))
     if n <= 1 or getattr(_local, "inside", False):
         return [fn(x) for x in items]
-    return list(_executor(threads()).map(_in_worker(fn), items))
+    results: list = [None] * len(items)
+    errors: dict[int, BaseException] = {}
+    order = iter(range(len(items)))
+    lock = threading.Lock()
+
+    def drain() -> None:
+        _local.inside = True
+        try:
+            while not errors:
+                with lock:
+                    k = next(order, None)
+                if k is None:
+                    return
+                try:
+                    results[k] = fn(items[k])
+                except BaseException as error:  # raised in the caller below
+                    errors[k] = error
+        finally:
+            _local.inside = False
+
+    helpers = [_executor(n - 1).submit(drain) for _ in range(n - 1)]
+    drain()
+    for helper in helpers:
+        helper.result()
+    if errors:
+        raise errors[min(errors)]
+    return results

@@ -13,6 +13,7 @@ from shapes import l_block, u_block
 
 import pointcvx
 from conftest import DATA, ROOT
+from pointcvx import workers
 from pointcvx.evaluate import evaluate
 from pointcvx.features.field import (
     FAST_STEPS,
@@ -112,14 +113,19 @@ def test_pool_loss_and_gradients_equal_the_per_triplet_ones():
     negative = rng.integers(0, 50, (12, 9))
     negative[0, :3] = negative[0, 3]  # a negative drawn several times
     negative[1, 0] = anchor[2]  # an anchor that is another anchor's negative
-    loss, g_pool, g_pos = pool_info_nce_grad(pool, anchor, positive, negative, 0.3)
     ref, g_a, g_p, g_n = info_nce_grad(pool[anchor], positive, pool[negative], 0.3)
     expected = np.zeros_like(pool)
     np.add.at(expected, anchor, g_a)
     np.add.at(expected, negative.ravel(), g_n.reshape(-1, 32))
-    assert loss == pytest.approx(ref, rel=1e-12)
-    np.testing.assert_allclose(g_pool, expected, rtol=1e-10, atol=1e-14)
-    np.testing.assert_allclose(g_pos, g_p, rtol=1e-10, atol=1e-14)
+    workers.set_threads(2)
+    try:
+        for chunks in (1, 2, 5):  # the anchors in runs on two threads, their sums joined
+            loss, g_pool, g_pos = pool_info_nce_grad(pool, anchor, positive, negative, 0.3, chunks)
+            assert loss == pytest.approx(ref, rel=1e-12)
+            np.testing.assert_allclose(g_pool, expected, rtol=1e-10, atol=1e-14)
+            np.testing.assert_allclose(g_pos, g_p, rtol=1e-10, atol=1e-14)
+    finally:
+        workers.set_threads(None)
 
 
 def test_weighted_draws_follow_the_weights():
@@ -153,7 +159,14 @@ def test_triplets_are_real_and_seeded(lshape):
 def test_fit_lowers_the_loss_separates_the_l_and_is_deterministic(lshape):
     cloud, solid = lshape
     t = sample_field_triplets(solid, cloud.points, cloud.normals, n_anchors=1024, seed=0)
-    f1, f2 = fit_field(t, seed=5), fit_field(t, seed=5)
+    fits = []
+    for threads in (1, 2):  # the step's chunks are fixed: any number of threads, one field
+        workers.set_threads(threads)
+        try:
+            fits.append(fit_field(t, seed=5))
+        finally:
+            workers.set_threads(None)
+    f1, f2 = fits
     assert len(f1.losses) == FAST_STEPS and np.mean(f1.losses[-10:]) < 0.7 * np.mean(f1.losses[:10])
     assert f1.losses == f2.losses
     feats = f1.features(cloud.points)
@@ -207,3 +220,15 @@ def test_cli_fast_never_imports_torch(tmp_path):
     torch = sorted(m for m in imported if m == "torch" or m.startswith("torch."))
     assert not torch, torch
     assert out.stat().st_size > 0 and out.read_text().count("\no ") >= 1
+
+
+def test_unique_rows_equal_numpy_unique():
+    from pointcvx.features.field import _unique_rows
+
+    idx = np.random.default_rng(3).integers(0, 300, 1000)
+    idx[:5] = 299  # the last row, several times
+    used, inv = _unique_rows(idx, 300)
+    ref_used, ref_inv = np.unique(idx, return_inverse=True)
+    np.testing.assert_array_equal(used, ref_used)
+    np.testing.assert_array_equal(inv, ref_inv)
+    assert _unique_rows(np.zeros(0, np.int64), 4)[0].size == 0
