@@ -360,3 +360,21 @@ def test_evaluate_points_on_a_sphere_cloud():
     assert evaluate_points(pts, [pts], seed=3) == evaluate_points(pts, [pts], seed=3)
     with pytest.raises(InputError):
         evaluate_points(pts, [])
+
+
+def test_hole_aware_distance_reads_holes_as_surface_and_keeps_air_and_edges():
+    """Samples of the plane z = 0 with a hole of radius 0.3 round the origin, normals +z: a
+    point in the hole is on the surface (0, not the hole's 0.3), a point 0.2 over the plane is
+    0.2 away, and a point beyond the samples' edge keeps its Euclidean distance."""
+    from pointcvx.decomposition.concavity import hole_aware_distance, nearest_distance
+
+    g = np.stack(np.meshgrid(np.linspace(-1, 1, 41), np.linspace(-1, 1, 41)), -1).reshape(-1, 2)
+    g = g[np.linalg.norm(g, axis=1) > 0.3]
+    pts = np.column_stack([g, np.zeros(len(g))])
+    normals = np.tile([0.0, 0.0, 1.0], (len(pts), 1))
+    q = np.array([[0.0, 0.0, 0.0], [0.5, 0.5, 0.2], [1.4, 0.0, 0.0]])
+    d = hole_aware_distance(q, pts, normals)
+    e = nearest_distance(q, pts)
+    assert d[0] == pytest.approx(0.0, abs=1e-9) and e[0] > 0.29
+    assert d[1] == pytest.approx(0.2, abs=1e-9)
+    assert d[2] == pytest.approx(e[2]) == pytest.approx(0.4)

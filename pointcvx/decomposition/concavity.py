@@ -36,6 +36,66 @@ def nearest_distance(points, targets) -> np.ndarray:
     return tree.query(pts, workers=-1 if len(pts) > 50000 else 1)[0]
 
 
+#: Neighbours of a hull sample that tell a hole in the part's sampling from air
+#: (:func:`hole_aware_distance`).
+HOLE_NEIGHBOURS = 16
+#: Of those, the ones whose normals are within this angle (degrees) of the nearest one's are
+#: its face.
+HOLE_FACE_DEGREES = 30.0
+
+
+def hole_aware_distance(samples, points, normals) -> np.ndarray:
+    """(n,) float: distance from each of (n, 3) ``samples`` to the surface that (m, 3) ``points``
+    with (m, 3) unit outward ``normals`` sample, reading a hole in the sampling as surface.
+
+    A sample's distance is the Euclidean distance to its nearest point, except where the face
+    of that point surrounds it: of its :data:`HOLE_NEIGHBOURS` nearest points, those whose
+    normals are within :data:`HOLE_FACE_DEGREES` of the nearest one's (at least 5), seen along
+    their mean normal, leave no empty half-plane about the sample. There it is its height above
+    that face, ``|(s - c) . n|`` with ``c`` their centroid and ``n`` their mean normal, if less.
+    A sample in a hole between random samples of a flat face is then about 0 instead of the
+    hole's radius; one over a cavity, whose nearest points are the cavity's floor, is its
+    height over the floor as before; one beyond the edge of the part has all its neighbours on
+    one side and keeps its Euclidean distance.
+    """
+    from scipy.spatial import cKDTree
+
+    samples = np.asarray(samples, dtype=np.float64).reshape(-1, 3)
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    normals = np.asarray(normals, dtype=np.float64).reshape(-1, 3)
+    if len(samples) == 0:
+        return np.zeros(0)
+    k = min(HOLE_NEIGHBOURS, len(points))
+    d, nn = cKDTree(points).query(samples, k=k)
+    if k < 5:  # too few points to see a face round the sample
+        return np.asarray(d if k == 1 else d[:, 0], dtype=np.float64)
+    nb, nbn = points[nn], normals[nn]  # (n, k, 3)
+    face = np.einsum("nkc,nc->nk", nbn, nbn[:, 0]) >= np.cos(np.radians(HOLE_FACE_DEGREES))
+    mean = (nbn * face[:, :, None]).sum(axis=1)
+    mean /= np.maximum(np.linalg.norm(mean, axis=1, keepdims=True), 1e-12)
+    # A tangent basis (u, v) of each mean normal; the angle of each face point about the sample.
+    helper = np.where(np.abs(mean[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    u = np.cross(mean, helper)
+    u /= np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-12)
+    v = np.cross(mean, u)
+    rel = nb - samples[:, None, :]
+    angle = np.arctan2(np.einsum("nkc,nc->nk", rel, v), np.einsum("nkc,nc->nk", rel, u))
+    angle = np.sort(np.where(face, angle, 4 * np.pi), axis=1)  # off-face points last
+    count = face.sum(axis=1)
+    first = angle[:, :1]
+    last = np.take_along_axis(angle, (count - 1)[:, None], axis=1)
+    steps = np.where(np.arange(1, k) < count[:, None], np.diff(angle, axis=1), 0.0)
+    widest = np.maximum(steps.max(axis=1), (first + 2 * np.pi - last)[:, 0])
+    hole = (count >= 5) & (widest < np.pi)
+    out = d[:, 0].copy()
+    if hole.any():
+        w = face[hole][:, :, None]
+        centre = (nb[hole] * w).sum(axis=1) / w.sum(axis=1)
+        height = np.abs(np.einsum("nc,nc->n", samples[hole] - centre, mean[hole]))
+        out[hole] = np.minimum(out[hole], height)
+    return out
+
+
 def chamfer_distance(a, b) -> float:
     """Chamfer distance of two samplings (n, 3) and (m, 3): the mean of the two directional mean
     nearest-neighbour Euclidean distances, ``(mean_a d(a, B) + mean_b d(b, A)) / 2``."""
@@ -75,6 +135,10 @@ def concavity_terms(hb_part: float, hb_hull: float, hull_volume: float, part_vol
 SURFACE_TOL = 1e-3
 #: A part's samples leave gaps of up to about this many times their typical spacing.
 GAP_SPACINGS = 4.0
+#: A solid rebuilt from samples (scans, splats) has its surface within this many sample
+#: spacings of the true one (more at rounded edges than on faces): the surface tolerance of their
+#: measure.
+HOLE_SURFACE_SPACINGS = 1.0
 
 
 def _max_outside(solid, samples: np.ndarray, dist: np.ndarray, surface_gap: float = 0.0,
@@ -130,6 +194,8 @@ def part_concavity(
     n_volume_samples: int = 1000,
     seed: int = 0,
     surface_gap: float | None = None,
+    normals=None,
+    surface_tol: float | None = None,
     return_terms: bool = False,
 ):
     """Concavity of a part known by its surface samples, inside the whole shape's solid.
@@ -154,6 +220,15 @@ def part_concavity(
         The largest gap expected between neighbouring part samples (default: ``GAP_SPACINGS``
         times their median spacing). Polytope-surface samples on the solid's surface and within
         this of the part lie on the part's own faces and are not concavity.
+    normals : (n, 3) float, optional
+        Unit outward normals of ``points``. Given (a solid rebuilt from samples: scans and
+        splats), hull samples in holes of the part's sampling are read as surface
+        (:func:`hole_aware_distance`), so a convex part measures about 0 however unevenly it
+        was sampled.
+    surface_tol : float, optional
+        How far from the solid's surface a point still lies on it (default
+        :data:`SURFACE_TOL`, for an exact solid). Given (a solid rebuilt from samples), volume
+        samples outside the solid but within it are also the part's.
     return_terms : bool
         Return a dict of the terms instead of the concavity alone.
 
@@ -195,7 +270,12 @@ def part_concavity(
         hull = convex_hull(pts)
     rng = np.random.default_rng(seed)
     hs = sample_hull_surface(hull, int(n_hull_samples), rng)
-    d_hs = nearest_distance(hs, pts) if len(hs) else np.zeros(0)
+    if not len(hs):
+        d_hs = np.zeros(0)
+    elif normals is not None:
+        d_hs = hole_aware_distance(hs, pts, normals)
+    else:
+        d_hs = nearest_distance(hs, pts)
     hb_part = max_inside_depth(hull, pts, hull.index if own_hull else None)
     part_volume = hull.volume
     outside_fraction = 0.0
@@ -204,11 +284,17 @@ def part_concavity(
     else:
         if hull.volume > 0 and n_volume_samples > 0:
             vs = sample_hull_interior(hull, int(n_volume_samples), rng)
-            outside_fraction = float(1.0 - solid.contains(vs).mean())
+            outside = ~solid.contains(vs)
+            if surface_tol is not None and outside.any():
+                # A rebuilt solid is rounded at the edges: volume samples within its surface
+                # tolerance are the part's.
+                outside[outside] = solid.distance(vs[outside]) > surface_tol
+            outside_fraction = float(outside.mean())
             part_volume = hull.volume * (1.0 - outside_fraction)
         if surface_gap is None:
             surface_gap = GAP_SPACINGS * sample_spacing(pts)
-        hb_hull = _max_outside(solid, hs, d_hs, surface_gap)
+        tol = SURFACE_TOL if surface_tol is None else surface_tol
+        hb_hull = _max_outside(solid, hs, d_hs, surface_gap, tol)
     terms = concavity_terms(hb_part, hb_hull, hull.volume, part_volume, k)
     terms["outside_fraction"] = outside_fraction
     return terms if return_terms else terms["concavity"]

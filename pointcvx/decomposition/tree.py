@@ -8,7 +8,9 @@ median plane across the part's longest axis, and keeps the proposal whose more c
 least concave (between cuts into two convex children, the one whose hulls hold the least volume:
 :func:`split_score`). Disconnected parts are first split into components. Every split is kept in a
 binary tree, so the same feature field can be re-cut at another threshold or hull count without
-recomputing anything.
+recomputing anything. The measures of a split's proposals and of a merge's candidate pairs are
+independent, and run on the worker threads (:mod:`pointcvx.workers`): the same numbers with
+one thread or several.
 """
 
 from __future__ import annotations
@@ -27,7 +29,7 @@ from scipy.spatial import cKDTree
 from ..errors import InputError
 from ..options import SPLIT_METHODS
 from ..workers import pmap, threads
-from .concavity import GAP_SPACINGS, part_concavity, sample_spacing
+from .concavity import GAP_SPACINGS, HOLE_SURFACE_SPACINGS, part_concavity, sample_spacing
 from .hull import convex_hull, hull_contains
 from .kmeans import nearest_centre, two_means
 
@@ -270,30 +272,34 @@ class Decomposer:
             keep = np.argpartition(self._priority[indices], self.rank_points - 1)[: self.rank_points]
             indices = indices[keep]
             cut = self._priority[indices].max()
-        pts = self.points[indices]
-        if len(pts) < 4:
+        if len(indices) < 4:
             return 0.0, 0.0
-        hull = convex_hull(pts)
+        hull = convex_hull(self.points[indices])
         lo, hi = hull.bounds
         near = np.all((self.points >= lo) & (self.points <= hi), axis=1)
         if cut is not None:
             near &= self._priority <= cut
         near[indices] = False
+        measured = indices
         if self.surface is not None:
             near &= self.surface
             own = self.surface[indices]
             if own.sum() >= 4:  # the measure reads the part's surface samples only
-                pts = pts[own]
-        near = self.points[near]
+                measured = indices[own]
+        near = np.flatnonzero(near)
         if len(near):
             # Points at least a hair inside the hull (not those on a shared cut face).
-            swallowed = near[hull_contains(hull, near, tol=-1e-3, dtype=np.float32)]
+            swallowed = near[hull_contains(hull, self.points[near], tol=-1e-3, dtype=np.float32)]
             if len(swallowed):
-                pts = np.concatenate([pts, swallowed])
+                measured = np.concatenate([measured, swallowed])
         # The gaps between the part's samples: the cloud's, wider in a coarse subsample.
         gap = GAP_SPACINGS * self.spacing * (np.sqrt(n_part / len(indices)) if cut is not None else 1.0)
-        conc = part_concavity(pts, self.solid, hull=hull, n_hull_samples=n_samples,
-                              n_volume_samples=n_samples, seed=self.seed, surface_gap=gap)
+        # A solid rebuilt from samples: hull samples in the holes of the part's sampling are
+        # surface, and its surface is known to within a sample spacing.
+        rebuilt = {} if self.is_mesh else {"normals": self.normals[measured],
+                                           "surface_tol": HOLE_SURFACE_SPACINGS * self.spacing}
+        conc = part_concavity(self.points[measured], self.solid, hull=hull, n_hull_samples=n_samples,
+                              n_volume_samples=n_samples, seed=self.seed, surface_gap=gap, **rebuilt)
         return float(conc), float(hull.volume)
 
     def coarse_margin(self, n_points: int) -> float:
