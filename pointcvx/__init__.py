@@ -62,7 +62,7 @@ _PUBLIC = {
 _SUBMODULES = frozenset({
     "apps", "cli", "cloud", "deadline", "decomposition", "embree", "errors", "evaluate", "export",
     "features", "flags", "io", "model", "options", "pipeline", "progress", "result", "scene",
-    "solid", "syslibs", "training", "version", "view",
+    "solid", "syslibs", "training", "version", "view", "workers",
 })
 
 

@@ -3,8 +3,9 @@ proposals and of a merge's candidate pairs, the row chunks of the fit's steps.
 
 Each piece is a pure function of its input (its own seeded samples, no shared state), so the
 results are the same with one thread or several; only the time changes. The heavy parts of a
-piece (Qhull, NumPy's array loops and single-threaded BLAS) run without Python's lock, so two
-threads measure two parts in 0.55x the time of one (docs/benchmarks.md, "Two cores").
+piece (Qhull, ray casts, NumPy's array loops and single-threaded BLAS) run without Python's
+lock: on two cores a warm decomposition's split and merge take 0.7-1.0x and its fit 0.85-0.9x
+the time of one thread (docs/benchmarks.md, "Two cores").
 
 How many: :func:`set_threads` (``pointcvx batch`` and ``bench`` workers, from their thread
 share), else ``OMP_NUM_THREADS`` when set (the usual way to keep a process to one core), else

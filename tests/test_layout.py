@@ -15,7 +15,7 @@ MAX_LINES = 700
 
 #: Stages, lowest first: a module may import its own stage and the ones below, never above.
 STAGES = [
-    ("errors", "version", "options", "flags", "syslibs", "progress", "embree", "deadline"),
+    ("errors", "version", "options", "flags", "syslibs", "progress", "embree", "deadline", "workers"),
     ("cloud",),
     ("scene",),
     ("io",),
