@@ -107,3 +107,17 @@ def test_one_thread_and_two_give_the_same_decomposition():
         assert np.array_equal(a.vertices, b.vertices)
     assert np.array_equal(one.labels, two.labels)
     assert np.array_equal(one.concavity, two.concavity)
+
+
+def test_batch_and_bench_workers_thread_share_sets_the_worker_count():
+    """``apps.common.limit_threads`` (a batch or bench worker's thread share) sets the worker
+    threads too; in its own process, since it also fixes the process's BLAS threads."""
+    import subprocess
+    import sys
+
+    code = ("from pointcvx.apps.common import limit_threads; from pointcvx import workers; "
+            "before = workers.threads(); limit_threads(1); print(before, workers.threads())")
+    env = {**os.environ, "OMP_NUM_THREADS": "2"}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env,
+                         check=True, timeout=120).stdout.split()
+    assert out == ["2", "1"], out
