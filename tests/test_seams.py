@@ -84,9 +84,12 @@ def test_one_part_or_no_spacing_gives_the_parts_themselves():
 
 @pytest.fixture(scope="module")
 def l_result():
-    # Seed 1 cuts the L into its two boxes; seed 0's k-means starts cut the cube with a slab of
-    # the bar (valid at 0.1, but these tests start from a clean two-box cut).
-    return pointcvx.decompose(l_block(), threshold=0.1, n_points=6000, seed=1)
+    # Seed 5 cuts the L into two convex pieces (the cube with the bar's end under it, and the
+    # rest of the bar). Other seeds' k-means starts cut it elsewhere, all valid at 0.1: the bar
+    # in two as well (3 hulls), or along the cube's column, where the two hulls meeting on
+    # midpoints are chamfered by about 4.5 spacings at the box's edges, not 3. Which seed does
+    # what follows the features' last digits (it moved when the fit's step was chunked).
+    return pointcvx.decompose(l_block(), threshold=0.1, n_points=6000, seed=5)
 
 
 def _worst_boundary_gap(hulls: list[np.ndarray], surface: np.ndarray) -> float:

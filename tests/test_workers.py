@@ -21,15 +21,13 @@ def two_threads():
     workers.set_threads(None)
 
 
-def test_pmap_keeps_the_order_of_its_items(two_threads):
-    names = set()
-
-    def square(x):
-        names.add(threading.current_thread().name)
-        return x * x
-
-    assert workers.pmap(square, range(50)) == [x * x for x in range(50)]
-    assert any(n.startswith("pointcvx") for n in names), names
+def test_pmap_keeps_the_order_of_its_items_and_runs_two_at_once(two_threads):
+    assert workers.pmap(lambda x: x * x, range(50)) == [x * x for x in range(50)]
+    # The first two calls wait for each other: they return only if two threads run them at once.
+    meet = threading.Barrier(2, timeout=30)
+    names = workers.pmap(lambda x: (meet.wait(), threading.current_thread().name)[1] if x < 2
+                         else threading.current_thread().name, range(6))
+    assert len(set(names[:2])) == 2 and any(n.startswith("pointcvx") for n in names), names
 
 
 def test_pmap_raises_the_first_callers_exception(two_threads):
