@@ -53,10 +53,13 @@ def threads() -> int:
 
 
 def _executor(n: int) -> ThreadPoolExecutor:
-    """The process's pool of ``n`` threads (a new one after a fork: threads do not survive it)."""
+    """The process's pool of ``n`` threads: kept while ``n`` stays, replaced when the setting
+    changes, and new after a fork (threads do not survive it)."""
     global _pool
     pid = os.getpid()
     if _pool is None or _pool[0] != pid or _pool[1] != n:
+        if _pool is not None and _pool[0] == pid:
+            _pool[2].shutdown(wait=False)
         _pool = (pid, n, ThreadPoolExecutor(n, thread_name_prefix="pointcvx"))
     return _pool[2]
 
@@ -91,7 +94,8 @@ def pmap(fn: Callable[[T], R], items: Iterable[T]) -> list[R]:
         finally:
             _local.inside = False
 
-    helpers = [_executor(n - 1).submit(drain) for _ in range(n - 1)]
+    pool = _executor(threads() - 1)  # one size for every map, however many items it has
+    helpers = [pool.submit(drain) for _ in range(n - 1)]
     drain()
     for helper in helpers:
         helper.result()

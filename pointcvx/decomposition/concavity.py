@@ -42,6 +42,8 @@ HOLE_NEIGHBOURS = 16
 #: Of those, the ones whose normals are within this angle (degrees) of the nearest one's are
 #: its face.
 HOLE_FACE_DEGREES = 30.0
+#: The fewest of those on the face for it to be seen round the sample.
+HOLE_FACE_POINTS = 5
 
 
 def hole_aware_distance(samples, points, normals) -> np.ndarray:
@@ -50,8 +52,9 @@ def hole_aware_distance(samples, points, normals) -> np.ndarray:
 
     A sample's distance is the Euclidean distance to its nearest point, except where the face
     of that point surrounds it: of its :data:`HOLE_NEIGHBOURS` nearest points, those whose
-    normals are within :data:`HOLE_FACE_DEGREES` of the nearest one's (at least 5), seen along
-    their mean normal, leave no empty half-plane about the sample. There it is its height above
+    normals are within :data:`HOLE_FACE_DEGREES` of the nearest one's (at least
+    :data:`HOLE_FACE_POINTS`), seen along their mean normal, leave no empty half-plane about
+    the sample. There it is its height above
     that face, ``|(s - c) . n|`` with ``c`` their centroid and ``n`` their mean normal, if less.
     A sample in a hole between random samples of a flat face is then about 0 instead of the
     hole's radius; one over a cavity, whose nearest points are the cavity's floor, is its
@@ -67,7 +70,7 @@ def hole_aware_distance(samples, points, normals) -> np.ndarray:
         return np.zeros(0)
     k = min(HOLE_NEIGHBOURS, len(points))
     d, nn = cKDTree(points).query(samples, k=k)
-    if k < 5:  # too few points to see a face round the sample
+    if k < HOLE_FACE_POINTS:  # too few points to see a face round the sample
         return np.asarray(d if k == 1 else d[:, 0], dtype=np.float64)
     nb, nbn = points[nn], normals[nn]  # (n, k, 3)
     face = np.einsum("nkc,nc->nk", nbn, nbn[:, 0]) >= np.cos(np.radians(HOLE_FACE_DEGREES))
@@ -86,7 +89,7 @@ def hole_aware_distance(samples, points, normals) -> np.ndarray:
     last = np.take_along_axis(angle, (count - 1)[:, None], axis=1)
     steps = np.where(np.arange(1, k) < count[:, None], np.diff(angle, axis=1), 0.0)
     widest = np.maximum(steps.max(axis=1), (first + 2 * np.pi - last)[:, 0])
-    hole = (count >= 5) & (widest < np.pi)
+    hole = (count >= HOLE_FACE_POINTS) & (widest < np.pi)
     out = d[:, 0].copy()
     if hole.any():
         w = face[hole][:, :, None]

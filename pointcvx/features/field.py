@@ -195,14 +195,18 @@ def pool_info_nce_grad(pool: np.ndarray, anchor: np.ndarray, positive: np.ndarra
     The anchors are taken in ``chunks`` runs on the worker threads (:mod:`pointcvx.workers`),
     their pool gradients summed: the same up to round-off as one run, whatever the threads."""
     a = len(anchor)
-    cuts = np.linspace(0, a, chunks + 1).astype(int)
-    runs = [slice(lo, hi) for lo, hi in zip(cuts[:-1], cuts[1:], strict=True) if hi > lo]
+    runs = even_slices(a, chunks)
     parts = pmap(lambda r: _pool_info_nce_run(pool, anchor[r], positive[r], negative[r], tau, a), runs)
     g_pool = parts[0][1]
     for _, more, _ in parts[1:]:
         g_pool += more
-    return (sum(p[0] for p in parts) / (2 * a), g_pool,
-            np.concatenate([p[2] for p in parts]) if parts else np.zeros_like(positive))
+    return sum(p[0] for p in parts) / (2 * a), g_pool, np.concatenate([p[2] for p in parts])
+
+
+def even_slices(n: int, chunks: int) -> list[slice]:
+    """``chunks`` consecutive slices of ``range(n)`` as even as can be (the empty ones left out)."""
+    cuts = np.linspace(0, n, chunks + 1).astype(int)
+    return [slice(lo, hi) for lo, hi in zip(cuts[:-1], cuts[1:], strict=True) if hi > lo]
 
 
 def _pool_info_nce_run(pool: np.ndarray, anchor: np.ndarray, positive: np.ndarray,
@@ -280,8 +284,7 @@ def fit_field(triplets: Triplets, *, dim: int = 32, steps: int = FAST_STEPS, bat
             used, inv = _unique_rows(np.concatenate([anchor[pick], neg.ravel()]), len(pool))
             a_idx, n_idx = inv[: len(pick)], inv[len(pick) :].reshape(neg.shape)
             rows = np.concatenate([enc_pool[used], enc_pos[pick]])
-            cuts = np.linspace(0, len(rows), STEP_CHUNKS + 1).astype(int)
-            chunks = [slice(a, b) for a, b in zip(cuts[:-1], cuts[1:], strict=True)]
+            chunks = even_slices(len(rows), STEP_CHUNKS)
             ahead = pmap(field._forward_encoded, [rows[c] for c in chunks])
             feats = np.concatenate([f for f, _, _ in ahead])
             f_pool, f_pos = feats[: len(used)], feats[len(used) :]
