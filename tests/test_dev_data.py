@@ -100,17 +100,21 @@ def test_the_lampposts_sparse_head_is_cut_at_what_its_samples_resolve(tmp_path, 
 
 
 def test_the_office_frames_wall_is_static_and_frees_its_objects(tmp_path):
-    """office1.pcd sees a room's back wall straight on, with no floor in view: the wall (a plane
-    bounding the view) is removed and reported, what stood against it falls into several
-    objects (it was one, joined by the wall), up is the image's, and the MJCF scene has the wall
-    as a static box that MuJoCo loads and steps."""
+    """office1.pcd sees a room's back wall straight on, a side wall that steps 0.35 m proud
+    over a third of its length, and a strip of floor: the floor is the support (up is its
+    normal), both walls (planes bounding the view) are removed and reported, what stood against
+    them falls into several objects (it was one, joined by the walls), and the MJCF scene has
+    the walls as static boxes that MuJoCo loads and steps."""
     import mujoco
 
     result = pointcvx.decompose(DATA / "raw_scans" / "office1.pcd", seed=0)
     iso = result.cloud.info["isolation"]
     assert iso["removed"]["walls"] > 10000 and len(iso["walls"]) >= 1
     assert iso["walls"][0]["normal"][2] < -0.99  # the back wall, facing the sensor
-    assert len(result.objects) >= 3 and result.cloud.info["up"] == [0.0, -1.0, 0.0]
+    assert any(w["normal"][0] < -0.95 for w in iso["walls"])  # the side wall, on the right
+    floor = np.asarray(result.report()["support_plane"]["normal"])
+    assert floor @ [0.0, -1.0, 0.0] > 0.99 and result.cloud.info["up"] == floor.tolist()
+    assert len(result.objects) >= 3
     assert result.report()["isolation"]["walls"] == iso["walls"]
     written = result.export(tmp_path / "office.xml")
     xml = next(p for p in written if str(p).endswith(".xml"))
@@ -121,12 +125,12 @@ def test_the_office_frames_wall_is_static_and_frees_its_objects(tmp_path):
     for _ in range(100):
         mujoco.mj_step(model, data)
     assert np.isfinite(data.qpos).all()
-    # URDF: the wall a box collision of the root link; USD: a static collider beside the bodies
+    # URDF: the floor and the walls box collisions of the root link; USD: static colliders
     import xml.etree.ElementTree as ET
 
     root = ET.parse(result.export(tmp_path / "office.urdf")[0]).getroot().find("link")
     names = [c.get("name") for c in root.findall("collision")]
-    assert names == [f"wall_{k:02d}" for k in range(len(iso["walls"]))]
+    assert names == ["support"] + [f"wall_{k:02d}" for k in range(len(iso["walls"]))]
     from pxr import Usd, UsdPhysics
 
     stage = Usd.Stage.Open(str(result.export(tmp_path / "office.usda")[0]))

@@ -318,3 +318,55 @@ def test_an_objects_faces_are_not_walls(rng):
     floor = np.stack([rng.uniform(-3, 3, 6000), np.full(6000, 1.5), rng.uniform(1, 5, 6000)], axis=1)
     found = isolate(np.concatenate([box, floor]), up=FRAME_UP, sensor=np.zeros(3))
     assert not found.walls and found.keep[: len(box)].mean() > 0.7  # all but its bottom
+
+
+def _grid(rng, n, a, b, c):
+    """(n, 3) points uniform over the box of the (lo, hi) ranges a, b, c."""
+    return np.stack([rng.uniform(*a, n), rng.uniform(*b, n), rng.uniform(*c, n)], axis=1)
+
+
+def test_a_frames_floor_is_found_past_walls_and_desk_tops(rng):
+    """A frame whose floor is a strip (3 % of the points, under the back wall's 0.05 share of a
+    first plane search) and whose desk top, larger and facing up too, has a drawer under it: the
+    support is the floor, not the desk (things below it) and not nothing."""
+    from pointcvx.scene import FRAME_UP
+
+    parts = [_grid(rng, 9000, (-2, 2), (-1.5, 1.5), (4, 4)),  # back wall
+             _grid(rng, 2500, (-1, 1), (0.7, 0.7), (2.5, 3.5)),  # desk top
+             box_points([-0.9, 0.75, 2.6], [-0.3, 1.2, 3.4], 2500, rng),  # a drawer under it
+             _grid(rng, 500, (-2, 2), (1.5, 1.5), (3.0, 4.0)),  # the floor's strip
+             box_points([0.5, 1.0, 3.6], [0.9, 1.49, 3.9], 1000, rng)]  # a bin on it
+    pts = np.concatenate(parts) + rng.normal(0, 0.005, (sum(map(len, parts)), 3))
+    plane = support_plane(pts, up=FRAME_UP)
+    assert plane is not None and plane.normal @ FRAME_UP > 0.99
+    assert plane.offset == pytest.approx(-1.5, abs=0.05)  # the floor (y = 1.5), not the desk (0.7)
+
+
+def test_a_stepped_wall_is_one_wall(rng):
+    """A side wall that stands 0.3 m proud over its near two thirds (a step, as in a real
+    office frame): the near part has the far part just behind it and the far part is too
+    short to span the frame; the near part is the wall, and the far part, behind it, goes with
+    it. The box and the cabinet stay."""
+    from pointcvx.scene import FRAME_UP
+
+    pts, part = _room_frame(rng)
+    side = pts[part["side"]]
+    near = side[:, 2] < 3.0
+    side[near, 0] -= 0.3
+    pts[part["side"]] = side
+    found = isolate(pts, up=FRAME_UP, sensor=np.zeros(3))
+    assert found.keep[part["side"]].mean() < 0.02 and found.keep[part["back"]].mean() < 0.02
+    assert found.keep[part["cabinet"]].mean() > 0.5 and found.keep[part["box"]].mean() > 0.7
+
+
+def test_a_row_of_box_tops_is_no_wall(rng):
+    """Nine boxes of one height on the floor seen from above: their tops share a plane that
+    bounds the view (the sensor above, their sides just below) and spans the frame, but it
+    faces up: furniture, never a wall."""
+    from pointcvx.scene import FRAME_UP
+
+    boxes = [box_points([x, 1.3, z], [x + 0.5, 1.5, z + 0.5], 800, rng)
+             for x in (-1.5, -0.25, 1.0) for z in (1.5, 2.5, 3.5)]
+    floor = _grid(rng, 8000, (-2, 2), (1.5, 1.5), (1, 4.5))
+    found = isolate(np.concatenate(boxes + [floor]), up=FRAME_UP, sensor=np.zeros(3))
+    assert not found.walls and found.keep[: 9 * 800].mean() > 0.6  # all but their bottoms

@@ -20,21 +20,26 @@ A plane is the **support** when:
   the object's sides rise right from it, and it stays.
 
 In an organised depth frame the image's up direction (``-y`` of the sensor frame) is known, and
-the support is the largest plane facing it (within :data:`FRAME_UP_COS`), objects above it.
+the support is the largest plane facing it (within :data:`FRAME_UP_COS`) with the objects above
+it (a desk top has things below it), among :data:`FRAME_PLANES` planes of at least
+:data:`FRAME_FLOOR_SHARE` of the points (the floor is often a strip under walls and furniture).
 
 A depth frame of a room also sees the room's **walls** (and ceiling), which join whatever stands
 against them into one piece. A plane of a frame is a wall when (:func:`walls`):
 
 - it holds at least :data:`WALL_SHARE` of the points left after the support;
-- the sensor and at least :data:`ONE_SIDED` of the other points lie on the same side of it (it
-  bounds the view: a cabinet's front has the wall behind it, a box's top has the sensor above
-  it and the other objects below);
+- the sensor and at least :data:`ONE_SIDED` of the other points lie on the same side of it, or
+  at most :data:`WALL_DEPTH` of its distance from the sensor behind it (it bounds the view: a
+  cabinet's front has the wall behind it, a box's top has the sensor above it and the other
+  objects below; a niche or a step in the wall is only just behind);
 - its outline covers at least :data:`WALL_AREA` of the area of the rest's shadow on it, and it
   spans at least :data:`WALL_SPAN` of the whole frame's extent along both of its own axes (a
   box's face is small beside the floor it stands on).
 
-Walls are removed like the support, band and all, and reported (``removed["walls"]``, the planes
-in ``walls``); scene exports give each a static box.
+A plane facing up (within :data:`FRAME_UP_COS`) is a floor or a table, never a wall. Every plane
+that passes in a search is taken, then planes are looked for again among the rest. Walls are
+removed like the support, band and all, and reported (``removed["walls"]``, the planes in
+``walls``); scene exports give each a static box.
 """
 
 from __future__ import annotations
@@ -55,6 +60,8 @@ SEPARATE = 0.15
 #: Points below the support plane or within this many plane tolerances above it go with it.
 SUPPORT_BAND = 1.0
 FRAME_UP_COS = 0.5
+#: In a frame the support is looked for among this many planes of at least this share each.
+FRAME_PLANES, FRAME_FLOOR_SHARE = 12, 0.02
 #: A piece smaller than this share of the largest piece is clutter (or a floater).
 CLUTTER_SHARE = 0.05
 #: Plane tolerance: this many median point spacings, and at least this share of the extent.
@@ -65,6 +72,10 @@ WALL_SHARE = 0.05
 WALL_AREA = 0.5
 #: ... and spans at least this share of the frame's extent along both of its axes.
 WALL_SPAN = 0.5
+#: Points at most this share of a wall's distance from the sensor behind its band are on its side:
+#: a niche, a step in the wall, a door's reveal (in a room's corner frame the side wall stood
+#: 0.35 m proud of itself over a third of its length).
+WALL_DEPTH = 0.25
 #: At most this many walls per frame.
 MAX_WALLS = 6
 #: A depth sensor's error grows with distance: a wall's points and the points just in front of
@@ -164,7 +175,9 @@ def support_plane(points: np.ndarray, *, up: np.ndarray | None = None, seed: int
         return None
     extent = float(np.ptp(pts, axis=0).max())
     tol = max(PLANE_SPACINGS * spacing(pts), PLANE_EXTENT * extent)
-    for plane in find_planes(pts, tol, seed=seed):
+    # a frame's floor is often a strip under walls and furniture: look further for it
+    more = {} if up is None else {"min_share": FRAME_FLOOR_SHARE, "max_planes": FRAME_PLANES}
+    for plane in find_planes(pts, tol, seed=seed, **more):
         rest = ~plane.inliers
         share = plane.inliers.mean()
         if share > MAX_SUPPORT_SHARE or rest.sum() < 20:
@@ -175,7 +188,9 @@ def support_plane(points: np.ndarray, *, up: np.ndarray | None = None, seed: int
         if up is not None:
             if plane.normal @ up < FRAME_UP_COS:
                 continue
-            return plane if (d > -tol).mean() >= ONE_SIDED - 0.05 else None
+            if (d > -tol).mean() >= ONE_SIDED - 0.05:
+                return plane
+            continue  # a desk top: things below it
         if (d > -tol).mean() < ONE_SIDED:
             continue
         width = _outline_area(pts[plane.inliers], plane.normal) / max(
@@ -234,11 +249,13 @@ def wall_face(points: np.ndarray, plane: Plane) -> dict:
 
 
 def walls(points: np.ndarray, sensor: np.ndarray, *, frame: np.ndarray | None = None,
-          seed: int = 0) -> list[Plane]:
+          up: np.ndarray | None = None, seed: int = 0) -> list[Plane]:
     """The walls of a depth frame's (n, 3) ``points`` seen from (3,) ``sensor``, largest first,
     each oriented towards the sensor, its ``inliers`` over ``points`` (see the module docstring).
-    ``frame``: all the frame's points (default ``points``), for its extent. Planes are looked for
-    again after each wall is taken out, at most :data:`MAX_WALLS`."""
+    ``frame``: all the frame's points (default ``points``), for its extent. ``up``: (3,), a
+    plane facing it (within :data:`FRAME_UP_COS`) is a table or a box's top, never a wall.
+    Planes are looked for again after each search's walls are taken out, at most
+    :data:`MAX_WALLS` walls."""
     pts = np.asarray(points, dtype=np.float64)
     every = pts if frame is None else np.asarray(frame, dtype=np.float64)
     free = np.ones(len(pts), dtype=bool)
@@ -248,26 +265,35 @@ def walls(points: np.ndarray, sensor: np.ndarray, *, frame: np.ndarray | None = 
     tol = max(PLANE_SPACINGS * spacing(pts), PLANE_EXTENT * float(np.ptp(pts, axis=0).max()))
     while len(found) < MAX_WALLS and free.sum() >= 50:
         idx = np.flatnonzero(free)
-        wall = None
+        taken = 0
         for plane in find_planes(pts[idx], tol, min_share=WALL_SHARE, seed=seed + len(found)):
+            if len(found) == MAX_WALLS:
+                break
+            if free[idx[plane.inliers]].mean() <= 0.5:  # in the band of a wall taken this search
+                continue
             if plane.distance(sensor[None])[0] < 0:
                 plane = plane.flipped()
-            band = max(tol, WALL_NOISE * float(plane.distance(sensor[None])[0]))
+            if up is not None and plane.normal @ up >= FRAME_UP_COS:  # a floor, a table
+                continue
+            away = float(plane.distance(sensor[None])[0])
+            band = max(tol, WALL_NOISE * away)
+            # judged on the search's points, walls taken in it included (that is stricter)
             rest = plane.distance(pts[idx]) > band
-            if rest.sum() < 20 or (plane.distance(pts[idx[~plane.inliers]]) > -band).mean() < ONE_SIDED:
+            behind = plane.distance(pts[idx[~plane.inliers]]) < -band - WALL_DEPTH * away
+            if rest.sum() < 20 or 1.0 - behind.mean() < ONE_SIDED:
                 continue
             area = _outline_area(pts[idx[plane.inliers]], plane.normal)
-            if area >= WALL_AREA * _outline_area(pts[idx[rest]], plane.normal) and _spans(
+            if area < WALL_AREA * _outline_area(pts[idx[rest]], plane.normal) or not _spans(
                     pts[idx[plane.inliers]], every, plane.normal):
-                wall = Plane(plane.normal, plane.offset, plane.inliers, band)
-                break
-        if wall is None:
+                continue
+            on = np.zeros(len(pts), dtype=bool)
+            # the wall's band (depth noise spreads it) and whatever lies behind it
+            on[idx] = (plane.distance(pts[idx]) <= band) & free[idx]
+            found.append(Plane(plane.normal, plane.offset, on, band))
+            free &= ~on
+            taken += 1
+        if not taken:
             break
-        on = np.zeros(len(pts), dtype=bool)
-        # the wall's band (depth noise spreads it) and whatever lies behind it
-        on[idx] = wall.distance(pts[idx]) <= wall.tolerance
-        found.append(Plane(wall.normal, wall.offset, on, wall.tolerance))
-        free &= ~on
     return found
 
 
@@ -317,7 +343,7 @@ def isolate(points: np.ndarray, mode: str = "all", *, crop: np.ndarray | None = 
         idx = idx[~on]
     if sensor is not None and len(idx):
         for wall in walls(pts[idx], np.asarray(sensor, dtype=np.float64), frame=pts[framed],
-                          seed=seed):
+                          up=result.up if result.up is not None else up, seed=seed):
             on = pts[idx[wall.inliers]]
             result.walls.append((wall, np.stack([on.min(axis=0), on.max(axis=0)]), wall_face(on, wall)))
             keep[idx[wall.inliers]] = False
