@@ -116,6 +116,23 @@ def test_loading_a_scan_isolates_it_and_reports_what_was_removed(tmp_path, rng):
     assert len(everything) == len(cloud) + len(cloud.removed)
 
 
+
+def test_a_scan_mostly_ground_is_read_again_to_give_its_object_the_budget(tmp_path, rng):
+    """A scan of 40,000 points, nine tenths of them ground, with a budget of 2,000: thinned to
+    4x the budget before isolation, the box kept about 800; the scan is read again thinned less
+    and the box gets the whole budget. A scan whose object fills the budget is read once."""
+    box = box_points([-0.5, -0.3, 0.0], [0.5, 0.3, 0.8], 4000, rng)
+    ground = disc_points([0, 0, 0], 4.0, 36000, rng)
+    path = _write_xyz(tmp_path / "mostly_ground.xyz", np.concatenate([box, ground]))
+    cloud = pointcvx.load(path, normalize=False, n_points=2000)
+    assert len(cloud) == 2000 and cloud.info["read_again"]["kept_first"] < 1200
+    assert cloud.info["read_again"]["budget"] > 2000
+    assert (cloud.points[:, 2] > 0.02).mean() > 0.8  # the box's, not the ground's
+    half = _write_xyz(tmp_path / "half_ground.xyz", np.concatenate([box, ground[:6000]]))
+    once = pointcvx.load(half, normalize=False, n_points=2000)
+    assert len(once) == 2000 and "presampled_from" in once.info and "read_again" not in once.info
+
+
 BOXES = [([-2.0, -0.3, 0.0], [-1.2, 0.3, 0.9]), ([1.0, -0.4, 0.0], [1.6, 0.4, 0.5])]
 
 

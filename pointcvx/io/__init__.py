@@ -10,6 +10,7 @@ numpy, trimesh and open3d objects; :func:`save_cloud` writes one as a PLY.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import os
 import time
@@ -58,6 +59,26 @@ def finalize(cloud: OrientedCloud, opts: LoadOptions) -> OrientedCloud:
     return cloud
 
 
+#: A second read thins to this much more than the first read's isolation share asks for.
+READ_AGAIN_MARGIN = 1.25
+
+
+def _wider_budget(cloud: OrientedCloud, opts: LoadOptions) -> LoadOptions | None:
+    """Options for a second read of a scan that was thinned to ``PRESAMPLE_FACTOR`` times the
+    point budget before isolation and whose object(s) came out short of the budget (a room's
+    depth frame is mostly floor and walls): thinned less, by the share isolation kept, so the
+    object(s) get the whole budget (at most the whole input). None when the first read will do."""
+    read = cloud.info.get("presampled_from")
+    budget = opts.n_points
+    if not read or budget is None or len(cloud) >= budget or "isolation" not in cloud.info:
+        return None
+    from .scan import PRESAMPLE_FACTOR
+
+    share = len(cloud) / (PRESAMPLE_FACTOR * budget)  # of the thinned points, the object(s)'
+    need = int(np.ceil(READ_AGAIN_MARGIN * budget / max(share, 1e-9) / PRESAMPLE_FACTOR))
+    return dataclasses.replace(opts, n_points=min(need, int(np.ceil(read / PRESAMPLE_FACTOR))))
+
+
 def load(path: str | os.PathLike, options: LoadOptions | None = None, **kwargs) -> OrientedCloud:
     """Load any supported file as an oriented cloud.
 
@@ -94,8 +115,12 @@ def load(path: str | os.PathLike, options: LoadOptions | None = None, **kwargs) 
         with np.errstate(all="ignore"):
             found = detect(path)
             log.debug("%s: detected %s (%s)", path, found.format, found.modality)
-            cloud = _loader(found.modality)(path, found.format, opts)
-            cloud = finalize(cloud, opts)
+            cloud = finalize(_loader(found.modality)(path, found.format, opts), opts)
+            wider = _wider_budget(cloud, opts)
+            if wider is not None:  # isolation left the object(s) short of the budget
+                first = len(cloud)
+                cloud = finalize(_loader(found.modality)(path, found.format, wider), opts)
+                cloud.info["read_again"] = {"kept_first": first, "budget": wider.n_points}
     except InputError as exc:  # name the file in checks that only know the arrays
         if str(path) in str(exc):
             raise
