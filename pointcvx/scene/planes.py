@@ -3,6 +3,7 @@ tables, the ground disc under a captured object) and the large flat structure of
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -86,16 +87,15 @@ def ransac_plane(points: np.ndarray, tolerance: float, *, iterations: int = 300,
 
 
 def find_planes(points: np.ndarray, tolerance: float, *, min_share: float = 0.05, max_planes: int = 6,
-                seed: int = 0) -> list[Plane]:
+                seed: int = 0) -> Iterator[Plane]:
     """Large planes of (n, 3) ``points``, largest first: RANSAC, remove its inliers, repeat while a
-    plane holds at least ``min_share`` of all points (at most ``max_planes``)."""
+    plane holds at least ``min_share`` of all points (at most ``max_planes``). Lazy: a caller that
+    stops at the plane it wants pays for no more RANSAC."""
     pts = np.asarray(points, dtype=np.float64)
     free = np.ones(len(pts), dtype=bool)
-    planes: list[Plane] = []
     for k in range(max_planes):
         plane = ransac_plane(pts, tolerance, seed=seed + k, allowed=free)
         if plane is None or plane.inliers.sum() < min_share * len(pts):
-            break
-        planes.append(plane)
+            return
+        yield plane
         free &= ~plane.inliers
-    return planes
