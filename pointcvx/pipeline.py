@@ -31,7 +31,7 @@ from .options import (
     parse_length,
     split_kwargs,
 )
-from .result import Decomposition, cut_decomposition, merge_parts
+from .result import Decomposition, cut_decomposition, merge_parts, share_budget
 from .scene.objects import is_scene, may_be_scene, object_pieces
 
 #: Modalities whose default feature source is the bundled model (docs/model.md compares the
@@ -278,6 +278,10 @@ def _decompose_scene(cloud: OrientedCloud, pieces: list[np.ndarray], dec: Decomp
                      deadline: Deadline | None = None) -> Decomposition:
     """A scene: each object (a connected piece of the isolated cloud) decomposed in its own
     normalised frame, so the threshold is relative to each object's size, then merged."""
+    if dec.max_hulls < len(pieces):
+        raise InputError(f"max_hulls is {dec.max_hulls}, less than the scene's {len(pieces)} objects "
+                         "(each needs a hull): raise it, or decompose the whole as one shape "
+                         "(scene off) or its largest object only (isolate largest)")
     parts = []
     for k, idx in enumerate(pieces):
         obj = cloud.subset(idx).normalized()
@@ -285,7 +289,8 @@ def _decompose_scene(cloud: OrientedCloud, pieces: list[np.ndarray], dec: Decomp
         report = None if progress is None else (
             lambda stage, done, total, k=k: progress(f"object {k + 1}/{len(pieces)} {stage}", done, total))
         parts.append(_decompose_cloud(obj, dec, load, {"load": 0.0}, report, deadline))
-    return merge_parts(parts, pieces, cloud, {"load": loaded, "_start": t0})
+    # max_hulls bounds the scene's hulls, not each object's
+    return merge_parts(share_budget(parts, dec.max_hulls), pieces, cloud, {"load": loaded, "_start": t0})
 
 
 def _signature() -> inspect.Signature:

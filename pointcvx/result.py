@@ -18,6 +18,11 @@ from .errors import OutputError
 
 log = logging.getLogger(__name__)
 
+#: What a cut found, kept in its ``params`` beside the settings (a scene keeps them per object):
+#: the threshold a cloud too sparse for the asked one was cut at, and whether the hull budget
+#: (``max_hulls``) stopped the split with a part still above the threshold.
+OUTCOMES = ("resolved_threshold", "max_hulls_reached")
+
 
 @dataclass(eq=False)
 class ConvexHull:
@@ -77,7 +82,8 @@ class Decomposition:
         Every setting that produced the result, seed included.
     objects : list of dict, optional
         For a scene (``decompose(..., scene=...)``): per object, its ``name``, the indices of its
-        ``hulls``, its ``points`` count, its ``bounds`` (input units) and ``max_concavity``. Each
+        ``hulls``, its ``points`` count, its ``bounds`` (input units) and ``max_concavity``, and
+        where they apply its :data:`OUTCOMES` (``resolved_threshold``, ``max_hulls_reached``). Each
         object was decomposed in its own normalised frame. None for a single object.
     removed_points : (m, 3) float64, optional
         What isolation removed from the input (support plane, clutter), in input units.
@@ -145,6 +151,14 @@ class Decomposition:
         return {o["name"]: o["resolved_threshold"] for o in self.objects or [] if "resolved_threshold" in o}
 
     @property
+    def budget_stopped(self) -> list[str]:
+        """The objects (or ["shape"]) whose split the hull budget (``max_hulls``) stopped with a
+        part still above the threshold: more hulls would have brought them under it."""
+        if self.params.get("max_hulls_reached"):
+            return ["shape"]
+        return [o["name"] for o in self.objects or [] if o.get("max_hulls_reached")]
+
+    @property
     def max_concavity(self) -> float:
         return float(self.concavity.max()) if self.hulls else 0.0
 
@@ -174,7 +188,9 @@ class Decomposition:
         recomputed (a shape that needed no split computes them here if the new cut splits).
         """
         if self._parts is not None:
-            parts = [part.recut(threshold, max_hulls, merge) for _, part in self._parts]
+            budget = self.params["max_hulls"] if max_hulls is None else int(max_hulls)
+            parts = [part.recut(threshold, budget, merge) for _, part in self._parts]
+            parts = share_budget(parts, budget)
             return merge_parts(parts, [idx for idx, _ in self._parts], self.cloud,
                                {"load": self.timings.get("load", 0.0)})
         if self._decomposer is None:
@@ -328,7 +344,7 @@ def cut_decomposition(decomposer, cloud: OrientedCloud, params: dict, timings: d
     timings["features"] = 0.0
     # A cloud too sparse to resolve the threshold is cut at what it resolves, and says so.
     threshold = decomposer.stop_threshold(params["threshold"])
-    params = {k: v for k, v in params.items() if k != "resolved_threshold"}
+    params = {k: v for k, v in params.items() if k not in OUTCOMES}
     if threshold > params["threshold"]:
         params["resolved_threshold"] = round(threshold, 6)
     splits = decomposer.will_split(threshold, params["max_hulls"])
@@ -353,6 +369,9 @@ def cut_decomposition(decomposer, cloud: OrientedCloud, params: dict, timings: d
         else:
             parts, concavity = decomposer.leaf_parts(leaves, threshold)
     timings["merge"] = time.perf_counter() - t
+    if len(leaves) >= params["max_hulls"] and max(concavity, default=0.0) > threshold:
+        # The budget, not the threshold, stopped the split: the user should know to raise it.
+        params["max_hulls_reached"] = True
     t = time.perf_counter()
     labels = np.full(len(cloud), -1, dtype=np.int64)  # -1: noise, in no hull (leaf_parts)
     for i, idx in enumerate(parts):
@@ -378,6 +397,27 @@ def cut_decomposition(decomposer, cloud: OrientedCloud, params: dict, timings: d
                          _decomposer=decomposer)
 
 
+def share_budget(parts: list[Decomposition], max_hulls: int) -> list[Decomposition]:
+    """A scene's objects, each decomposed with the whole budget, cut again so that together
+    they hold at most ``max_hulls`` hulls: the budget goes where the concavity is
+    (:func:`~pointcvx.decomposition.tree.shared_budget`), and only objects whose share is
+    below what they used are cut again (their splits are reused; their merge runs again)."""
+    from .decomposition.tree import shared_budget
+
+    if sum(len(p.hulls) for p in parts) <= max_hulls:
+        return parts
+    decs = [p._decomposer for p in parts]
+    thresholds = [d.stop_threshold(p.params["threshold"]) for d, p in zip(decs, parts, strict=True)]
+    counts = shared_budget(decs, thresholds, max_hulls)
+    out = []
+    for part, dec, threshold, k in zip(parts, decs, thresholds, counts, strict=True):
+        if k < len(dec.cut(threshold, part.params["max_hulls"])):
+            part = part.recut(max_hulls=k)
+            part.params["max_hulls"] = max_hulls  # the scene's budget; its share was k
+        out.append(part)
+    return out
+
+
 def merge_parts(parts: list[Decomposition], pieces: list[np.ndarray], cloud: OrientedCloud,
                 timings: dict) -> Decomposition:
     """One decomposition of a scene from its objects' decompositions: ``parts[k]`` decomposed the
@@ -399,8 +439,7 @@ def merge_parts(parts: list[Decomposition], pieces: list[np.ndarray], cloud: Ori
                         "points": int(len(idx)),
                         "bounds": [pts.min(axis=0).tolist(), pts.max(axis=0).tolist()],
                         "max_concavity": round(part.max_concavity, 6)}
-                       | ({"resolved_threshold": part.params["resolved_threshold"]}
-                          if "resolved_threshold" in part.params else {}))
+                       | {key: part.params[key] for key in OUTCOMES if key in part.params})
         for key, value in part.timings.items():
             if key != "total":
                 timings[key] = timings.get(key, 0.0) + value
@@ -408,7 +447,7 @@ def merge_parts(parts: list[Decomposition], pieces: list[np.ndarray], cloud: Ori
     if noise:
         cloud = cloud.replace(info={**cloud.info, "noise_points": noise})
     timings["total"] = (time.perf_counter() - start) if start is not None else sum(timings.values())
-    params = ({k: v for k, v in parts[0].params.items() if k != "resolved_threshold"}
+    params = ({k: v for k, v in parts[0].params.items() if k not in OUTCOMES}
               | {"scene": True, "objects": len(parts)}) if parts else {"scene": True}
     return Decomposition(hulls, labels, cloud, tree, timings, params, objects=objects,
                          _parts=list(zip(pieces, parts, strict=True)))

@@ -377,3 +377,35 @@ def test_a_dense_cloud_and_a_sparse_mesh_keep_the_threshold():
     assert "resolved_threshold" not in dense.params and dense._decomposer.resolution < 0.1
     mesh = pointcvx.decompose(trimesh.creation.box((2.0, 1.0, 0.6)), n_points=200, seed=0)
     assert mesh._decomposer.resolution == 0.0 and "resolved_threshold" not in mesh.params
+
+
+def test_a_split_stopped_by_the_hull_budget_says_so(tmp_path, capsys):
+    """A U (three convex pieces) at a budget of two hulls ends above the threshold: the result
+    says the budget stopped it (params, the CLI's last line, the picture's caption), so a user
+    knows to raise --max-hulls; at the default budget it reaches the threshold and says
+    nothing, and a recut with room drops the flag."""
+    from shapes import u_block
+
+    from pointcvx.cli import main
+    from pointcvx.view.drawing import drawing_from
+    from pointcvx.view.png import caption_parts
+
+    mesh = u_block()
+    tight = pointcvx.decompose(mesh, max_hulls=2, seed=0, features="fast")
+    assert len(tight.hulls) <= 2 and tight.max_concavity > 0.1
+    assert tight.params["max_hulls_reached"] is True
+    assert tight.budget_stopped == ["shape"]
+    assert "stopped at the 2-hull budget" in caption_parts(drawing_from(tight).legend)
+    assert tight.report()["parameters"]["max_hulls_reached"] is True
+    roomy = tight.recut(max_hulls=64)
+    assert roomy.max_concavity <= 0.1 and "max_hulls_reached" not in roomy.params
+    assert roomy.budget_stopped == []
+    assert not any("budget" in p for p in caption_parts(drawing_from(roomy).legend))
+
+    src = tmp_path / "u.obj"
+    mesh.export(src)
+    assert main(["decompose", str(src), "-o", str(tmp_path / "u.json"), "-k", "2",
+                 "--features", "fast"]) == 0
+    assert "the 2-hull budget stopped the split above the threshold" in capsys.readouterr().out
+    assert main(["decompose", str(src), "-o", str(tmp_path / "v.json"), "--features", "fast"]) == 0
+    assert "budget" not in capsys.readouterr().out

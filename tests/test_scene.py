@@ -158,11 +158,55 @@ def test_a_scan_of_two_objects_on_a_floor_is_decomposed_object_by_object(two_box
             v = result.hulls[h].vertices
             assert (v >= np.subtract(lo, 0.1)).all() and (v <= np.add(hi, 0.1)).all()
     assert (result.labels >= -1).all() and result.labels.max() == len(result.hulls) - 1
-    again = result.recut(max_hulls=2)
-    assert len(again.objects) == 2 and len(again.hulls) <= 4
+    again = result.recut(max_hulls=2)  # the budget is the scene's: one hull per box
+    assert len(again.objects) == 2 and len(again.hulls) == 2
     single = pointcvx.decompose(path, features="model", n_points=6000, max_hulls=8, scene="off")
     assert single.objects is None and single.params["scene"] == "off"
     assert result.removed_points is not None and len(result.removed_points) > 2500  # the floor, thinned
+
+
+def _box_normals(pts: np.ndarray, lo, hi) -> np.ndarray:
+    """(n, 3) float outward normals of (n, 3) samples of the surface of the box [lo, hi]."""
+    on = np.stack([np.isclose(pts, lo), np.isclose(pts, hi)])  # (2, n, 3)
+    axis = np.argmax(on.any(axis=0), axis=1)
+    normals = np.zeros_like(pts)
+    normals[np.arange(len(pts)), axis] = np.where(on[1, np.arange(len(pts)), axis], 1.0, -1.0)
+    return normals
+
+
+def _lbox_scene(rng) -> pointcvx.OrientedCloud:
+    """A scan with its normals, every face seen: an L (a 1.2 x 0.4 x 0.4 bar and a 0.4 cube on
+    one end of it) and a 0.8 x 0.6 x 0.6 box, both held 0.3 over a floor (z = 0)."""
+    bar = ([1.0, -0.2, 0.3], [2.2, 0.2, 0.7])
+    cube = ([1.0, -0.2, 0.7], [1.4, 0.2, 1.1])
+    box = ([-1.6, -0.3, 0.3], [-0.8, 0.3, 0.9])
+    a, b, c = box_points(*bar, 5000, rng), box_points(*cube, 2500, rng), box_points(*box, 5000, rng)
+    keep_a = ~(np.isclose(a[:, 2], 0.7) & (a[:, 0] < 1.4))  # the bar's top under the cube
+    keep_b = ~np.isclose(b[:, 2], 0.7)  # the cube's base, inside the bar
+    floor = np.stack([rng.uniform(-3, 3, 8000), rng.uniform(-1.5, 1.5, 8000), np.zeros(8000)], axis=1)
+    pts = np.concatenate([a[keep_a], b[keep_b], c, floor])
+    normals = np.concatenate([_box_normals(a, *bar)[keep_a], _box_normals(b, *cube)[keep_b],
+                              _box_normals(c, *box), np.tile([0.0, 0.0, 1.0], (len(floor), 1))])
+    return pointcvx.OrientedCloud(pts, normals, modality="scan")
+
+
+def test_a_scenes_hull_budget_is_shared_by_its_objects(rng):
+    """``max_hulls`` bounds the scene's hulls, not each object's: an L (two convex pieces) and
+    a box on a floor take three hulls at a budget of 8 and at 3; at 2 the box keeps its hull,
+    the L gets one and is reported as stopped by the budget; a budget under the number of
+    objects is refused in one line."""
+    scene = _lbox_scene(rng)
+    opts = dict(features="fast", n_points=12000, seed=0, scene="on")
+    roomy = pointcvx.decompose(scene, max_hulls=8, **opts)
+    assert sorted(len(o["hulls"]) for o in roomy.objects) == [1, 2] and roomy.budget_stopped == []
+    assert len(pointcvx.decompose(scene, max_hulls=3, **opts).hulls) == 3
+    tight = pointcvx.decompose(scene, max_hulls=2, **opts)
+    assert [len(o["hulls"]) for o in tight.objects] == [1, 1] and tight.params["max_hulls"] == 2
+    ell = [o["name"] for o in roomy.objects if len(o["hulls"]) == 2]
+    assert tight.budget_stopped == ell
+    assert sorted(len(o["hulls"]) for o in tight.recut(max_hulls=3).objects) == [1, 2]
+    with pytest.raises(pointcvx.InputError, match="less than the scene's 2 objects"):
+        pointcvx.decompose(scene, max_hulls=1, **opts)
 
 
 def test_a_scene_is_one_body_per_object_on_a_static_plane_and_rests_in_mujoco(two_boxes, tmp_path):

@@ -90,6 +90,11 @@ def summary_line(summary: dict, limits) -> str:
     if summary.get("resolved_threshold"):
         line += (f"; too sparse to resolve threshold {summary['threshold']:g}, so cut at "
                  + ", ".join(f"{t:.3g} ({name})" for name, t in summary["resolved_threshold"].items()))
+    stopped = summary.get("budget_stopped")
+    if stopped:
+        which = "" if stopped == ["shape"] else f" ({', '.join(stopped)})"
+        line += (f"; the {summary['max_hulls']}-hull budget stopped the split above the threshold"
+                 f"{which}: raise --max-hulls for less concavity")
     if limits.active:
         caps = ", ".join(f"{what} <= {v}" for what, v in (("vertices", limits.max_vertices),
                                                            ("triangles", limits.max_faces))
@@ -165,6 +170,8 @@ def run(args: argparse.Namespace) -> int:
     summary["noise_points"] = int(result.cloud.info.get("noise_points", 0))
     summary["threshold"] = result.params["threshold"]
     summary["resolved_threshold"] = result.resolved_thresholds
+    summary["max_hulls"] = result.params["max_hulls"]
+    summary["budget_stopped"] = result.budget_stopped
     summary["timings"] = {k: round(v, 3) for k, v in result.timings.items()}
     print(json.dumps(summary, indent=2) if args.json else summary_line(summary, limits))
     return 0

@@ -534,6 +534,35 @@ class Decomposer:
         return [parts[k] for k in sorted(parts)], [conc[k] for k in sorted(parts)]
 
 
+def shared_budget(decomposers: list[Decomposer], thresholds: list[float], max_hulls: int) -> list[int]:
+    """How many leaves each of several shapes' split trees gets when they share one budget of
+    ``max_hulls`` (a scene's objects): :meth:`Decomposer.cut`'s greedy loop run across all the
+    trees at once, always splitting the most concave part of any shape that is above its own
+    threshold (``thresholds[k]``, each in its shape's normalised frame). Each tree cut alone at
+    its count gives the same leaves, as its parts are split in the same order. Splits are
+    memoised, so the trees' earlier cuts are reused."""
+    if max_hulls < len(decomposers):
+        raise InputError(f"max_hulls ({max_hulls}) is less than the number of objects ({len(decomposers)})")
+    heap = [(-d.tree.nodes[0].concavity, k, 0) for k, d in enumerate(decomposers)]
+    heapq.heapify(heap)
+    done = [0] * len(decomposers)
+    while heap and len(heap) + sum(done) < max_hulls:
+        neg, k, node_id = heapq.heappop(heap)
+        if -neg <= thresholds[k]:
+            done[k] += 1
+            continue
+        children = decomposers[k].split(node_id)
+        if children is None:
+            done[k] += 1
+            continue
+        for c in children:
+            heapq.heappush(heap, (-decomposers[k].tree.nodes[c].concavity, k, c))
+    counts = done
+    for _, k, _ in heap:
+        counts[k] += 1
+    return counts
+
+
 def planar_cut(points: np.ndarray, side: np.ndarray) -> np.ndarray | None:
     """The plane that best reproduces a two-way labelling of (m, 3) ``points``.
 

@@ -47,7 +47,8 @@ class Drawing:
         ``max_concavity``, ``seconds``, ``features``, ``modality``, ``points`` and
         ``points_total`` (drawn and given), ``removed``, ``noise`` (a scan's or splat's points
         in no hull), ``resolved_threshold`` (the largest threshold an object too sparse for the
-        asked one was cut at); ``None`` where unknown.
+        asked one was cut at), ``budget`` (``max_hulls``, where that budget stopped the split
+        above the threshold); ``None`` where unknown.
     up : str
         The axis that points up, one of :data:`UP_AXES`.
     up_exact : (3,) float64, optional
@@ -161,6 +162,9 @@ def _legend_of(x) -> dict[str, Any]:
         # the asked one (Decomposer.stop_threshold)
         resolved = x.resolved_thresholds.values() if hasattr(x, "resolved_thresholds") else ()
         legend["resolved_threshold"] = max(resolved, default=None)
+        # the hull budget stopped the split above the threshold (Decomposition.budget_stopped)
+        stopped = getattr(x, "budget_stopped", [])
+        legend["budget"] = x.params.get("max_hulls") if stopped else None
     return legend
 
 

@@ -327,6 +327,8 @@ def caption_parts(legend: dict) -> list[str]:
         parts.append(f"{legend['noise']:,} noise")
     if legend.get("resolved_threshold"):
         parts.append(f"sparse: cut at {legend['resolved_threshold']:.3g}")
+    if legend.get("budget"):
+        parts.append(f"stopped at the {legend['budget']}-hull budget")
     return [str(p) for p in parts if p]
 
 
