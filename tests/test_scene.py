@@ -9,7 +9,8 @@ import pytest
 import pointcvx
 import pointcvx.evaluate
 from conftest import ROOT
-from pointcvx.scene import components, isolate, support_plane
+from pointcvx.io import as_cloud
+from pointcvx.scene import base_samples, components, isolate, support_plane
 
 
 def box_points(lo, hi, n: int, rng) -> np.ndarray:
@@ -110,7 +111,7 @@ def test_loading_a_scan_isolates_it_and_reports_what_was_removed(tmp_path, rng):
     assert iso["mode"] == "all" and iso["removed"]["support"] > 4500
     assert cloud.info["up"][2] > 0.99
     assert len(cloud.removed) == iso["removed"]["support"] + iso["removed"]["clutter"]
-    assert len(cloud) == iso["kept"]
+    assert len(cloud) == iso["kept"] and "base" not in iso  # bases are closed when asked
     everything = pointcvx.load(path, normalize=False, isolate="none")
     assert "isolation" not in everything.info and everything.removed is None
     assert len(everything) == len(cloud) + len(cloud.removed)
@@ -188,6 +189,58 @@ def _lbox_scene(rng) -> pointcvx.OrientedCloud:
     normals = np.concatenate([_box_normals(a, *bar)[keep_a], _box_normals(b, *cube)[keep_b],
                               _box_normals(c, *box), np.tile([0.0, 0.0, 1.0], (len(floor), 1))])
     return pointcvx.OrientedCloud(pts, normals, modality="scan")
+
+
+def _on_floor(parts, rng, n_floor: int = 8000, bottoms: bool = False) -> pointcvx.OrientedCloud:
+    """A scan with its normals of boxes ``parts`` ([(lo, hi, n)]) and a floor (z = 0); the
+    boxes' faces on the floor are not seen unless ``bottoms``."""
+    pts, normals = [], []
+    for lo, hi, n in parts:
+        p = box_points(lo, hi, n, rng)
+        keep = bottoms | ~np.isclose(p[:, 2], 0.0)
+        pts.append(p[keep])
+        normals.append(_box_normals(p, lo, hi)[keep])
+    floor = np.stack([rng.uniform(-2, 2, n_floor), rng.uniform(-1.5, 1.5, n_floor),
+                      np.zeros(n_floor)], axis=1)
+    return pointcvx.OrientedCloud(np.concatenate([*pts, floor]),
+                                  np.concatenate([*normals, np.tile([0.0, 0.0, 1.0], (n_floor, 1))]),
+                                  modality="scan")
+
+
+#: A table: a 1.2 x 0.8 x 0.1 top on four 0.05-thick legs 0.5 long.
+TABLE = [([-0.6, -0.4, 0.5], [0.6, 0.4, 0.6], 6000)] + [
+    ([x, y, 0.0], [x + 0.05, y + 0.05, 0.5], 800) for x in (-0.55, 0.5) for y in (-0.35, 0.3)]
+
+
+def test_what_stands_on_the_removed_floor_has_its_base_closed_down_to_it_when_asked(rng):
+    """``close_bases="on"``: isolation removes the floor's band with the bottom of what stands
+    on it, and the floor hides the underside: the base is closed (a cap on the floor, a skirt
+    down to it) so the hulls reach the floor. By default the box's hull ends a band's height
+    above it. A box is one hull from z = 0; a table's four legs each get their own cap (nothing
+    between them); a box held over the floor gets none."""
+    box = _on_floor([([-0.4, -0.3, 0.0], [0.4, 0.3, 0.6], 6000)], rng)
+    cloud = as_cloud(box, normalize=False, n_points=None, close_bases="on")
+    assert cloud.info["isolation"]["base"]["objects"] == 1
+    result = pointcvx.decompose(box, features="fast", seed=0, close_bases="on")
+    low = min(h.vertices[:, 2].min() for h in result.hulls)
+    assert len(result.hulls) == 1 and abs(low) < 0.005, low
+    open_base = pointcvx.decompose(box, features="fast", seed=0)  # the default: left open
+    assert min(h.vertices[:, 2].min() for h in open_base.hulls) > 0.01
+    table = _on_floor(TABLE, rng)
+    found = isolate(table.points, "all")
+    pts, normals, src = base_samples(table.points[found.keep], table.normals[found.keep],
+                                     found.labels[found.keep], found.support, found.support.tolerance)
+    caps = pts[np.isclose(normals[:, 2], -1.0)]
+    assert len(caps) > 4 and np.abs(caps[:, 2]).max() < 1e-3
+    assert ((np.abs(caps[:, 0]) > 0.49) & (np.abs(caps[:, 1]) > 0.29)).all()  # under the legs only
+    assert len(set(map(tuple, np.sign(caps[:, :2]).astype(int)))) == 4  # each leg's
+    side = ~np.isclose(normals[:, 2], -1.0)
+    assert side.any() and np.abs(normals[side, 2]).max() < 1e-3 and pts[side, 2].min() > -1e-3
+    assert (src >= 0).all() and (src < found.keep.sum()).all()
+    tabled = pointcvx.decompose(table, features="fast", seed=0, close_bases="on")
+    assert min(h.vertices[:, 2].min() for h in tabled.hulls) < 0.005
+    held = _on_floor([([-0.4, -0.3, 0.3], [0.4, 0.3, 0.9], 6000)], rng, bottoms=True)
+    assert "base" not in as_cloud(held, normalize=False, n_points=None, close_bases="on").info["isolation"]
 
 
 def test_a_scenes_hull_budget_is_shared_by_its_objects(rng):

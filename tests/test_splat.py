@@ -98,7 +98,8 @@ def test_every_dev_splat_loads_oriented(path):
         assert key in info, key
     kept = info["gaussians"] - info["dropped_nonfinite"] - info["dropped_low_opacity"]
     isolated = sum(info["isolation"]["removed"].values())  # ground and clutter (pointcvx.scene)
-    assert len(cloud) == kept - info["dropped_floaters"] - info["dropped_outliers"] - isolated
+    closed = info["isolation"].get("base", {}).get("points", 0)  # samples closing bases (pointcvx.scene)
+    assert len(cloud) == kept - info["dropped_floaters"] - info["dropped_outliers"] - isolated + closed
     normalized = pointcvx.load(path, n_points=2000) if path.name == "donut.ply" else None
     if normalized is not None:
         assert len(normalized) == 2000 and np.abs(normalized.points).max() <= 1 + 1e-9

@@ -3,6 +3,7 @@ and a picture of each (docs/captures.md).
 
     python tools/captures.py OUTDIR [CAPTURE ...]     # default: ../shared/data/raw_scans/* and
                                                       # ../shared/data/dev/splats/*
+    python tools/captures.py OUTDIR --extra "--close-bases on"   # the same with more flags
 
 For each capture: ``pointcvx decompose CAPTURE -o OUTDIR/NAME.json --preview OUTDIR/NAME.html``
 as a user runs it (its own process, default settings, seed 0), then one markdown row from the
@@ -16,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shlex
 import subprocess
 import sys
 import time
@@ -29,12 +31,12 @@ def captures() -> list[Path]:
     return sorted((DATA / "raw_scans").glob("*.pcd")) + sorted((DATA / "dev" / "splats").iterdir())
 
 
-def run(capture: Path, out: Path) -> dict:
+def run(capture: Path, out: Path, extra: list[str] = ()) -> dict:
     name = capture.name.replace(".", "_")
     report = out / f"{name}.json"
     t = time.perf_counter()
     res = subprocess.run([sys.executable, "-m", "pointcvx", "decompose", str(capture), "-o", str(report),
-                          "--preview", str(out / f"{name}.html"), "--overwrite", "-q"],
+                          "--preview", str(out / f"{name}.html"), "--overwrite", "-q", *extra],
                          capture_output=True, text=True, cwd=ROOT)
     seconds = time.perf_counter() - t
     if res.returncode != 0:
@@ -55,14 +57,16 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("output", help="folder for the reports, pages and pictures")
     ap.add_argument("captures", nargs="*", help="capture files (default: raw_scans and dev/splats)")
+    ap.add_argument("--extra", default="", help="more decompose flags, one string (\"--close-bases on\")")
     args = ap.parse_args(argv)
+    extra = shlex.split(args.extra)
     out = Path(args.output)
     out.mkdir(parents=True, exist_ok=True)
     print("| capture | points | removed: support | removed: walls | removed: clutter | objects | hulls "
           "| max concavity | cut at | seconds |")
     print("|---|---|---|---|---|---|---|---|---|---|")
     for capture in [Path(c) for c in args.captures] or captures():
-        row = run(capture, out)
+        row = run(capture, out, extra)
         if "error" in row:
             print(f"| {row['name']} | error: {row['error']} | | | | | | | | |", flush=True)
             continue

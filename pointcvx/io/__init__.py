@@ -50,7 +50,8 @@ def finalize(cloud: OrientedCloud, opts: LoadOptions) -> OrientedCloud:
     cloud; :func:`pointcvx.scene.isolate_cloud`), degeneracy check, seeded point cap, [-1, 1]^3
     normalisation."""
     if "isolation" not in cloud.info:
-        cloud = isolate_cloud(cloud, opts.isolate, opts.crop, seed=opts.seed)
+        cloud = isolate_cloud(cloud, opts.isolate, opts.crop, seed=opts.seed,
+                              close_bases=opts.close_bases == "on")
     check_extent(cloud.points)
     if opts.n_points is not None:
         cloud = cloud.resample(opts.n_points, seed=opts.seed)
@@ -70,11 +71,14 @@ def _wider_budget(cloud: OrientedCloud, opts: LoadOptions) -> LoadOptions | None
     object(s) get the whole budget (at most the whole input). None when the first read will do."""
     read = cloud.info.get("presampled_from")
     budget = opts.n_points
-    if not read or budget is None or len(cloud) >= budget or "isolation" not in cloud.info:
+    if not read or budget is None or "isolation" not in cloud.info:
+        return None
+    kept = cloud.info["isolation"]["kept"]  # the read's own points (closed bases not counted)
+    if kept >= budget:
         return None
     from .scan import PRESAMPLE_FACTOR
 
-    share = len(cloud) / (PRESAMPLE_FACTOR * budget)  # of the thinned points, the object(s)'
+    share = kept / (PRESAMPLE_FACTOR * budget)  # of the thinned points, the object(s)'
     need = int(np.ceil(READ_AGAIN_MARGIN * budget / max(share, 1e-9) / PRESAMPLE_FACTOR))
     return dataclasses.replace(opts, n_points=min(need, int(np.ceil(read / PRESAMPLE_FACTOR))))
 

@@ -99,6 +99,8 @@ class Isolation:
     walls : list of (Plane, (2, 3) float, dict), a depth frame's walls, oriented towards the
         sensor, each with the box (min and max corners) of its points and its face
         (:func:`wall_face`).
+    labels : (n,) int or None, the kept piece of each point (0 the largest, -1 removed); None
+        when no pieces were looked for.
     """
 
     keep: np.ndarray
@@ -107,6 +109,7 @@ class Isolation:
     pieces: int = 1
     up: np.ndarray | None = None
     walls: list = field(default_factory=list)
+    labels: np.ndarray | None = None
 
     def report(self) -> dict:
         """JSON-able summary for ``cloud.info``."""
@@ -362,4 +365,6 @@ def isolate(points: np.ndarray, mode: str = "all", *, crop: np.ndarray | None = 
     result.removed["clutter"] = int(drop.sum())
     result.pieces = int(wanted.sum())
     keep[idx[drop]] = False
+    result.labels = np.full(len(pts), -1, dtype=np.int64)
+    result.labels[idx[~drop]] = labels[~drop]
     return result
