@@ -17,6 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from .components import components
+from .isolate import plane_basis, spacing
 from .planes import Plane
 
 #: A piece rests on the support when its lowest point is at most the removed band plus this many
@@ -31,20 +32,6 @@ STEP_SPACINGS = 2.0
 SIDEWAYS = 0.5
 #: Fewest points in a footprint to close.
 MIN_FOOTPRINT = 3
-
-
-def _median_spacing(points: np.ndarray) -> float:
-    from scipy.spatial import cKDTree
-
-    return float(np.median(cKDTree(points).query(points, k=2)[0][:, 1])) if len(points) > 1 else 0.0
-
-
-def _basis(normal: np.ndarray) -> np.ndarray:
-    """(2, 3) float unit axes of the plane with unit ``normal``."""
-    helper = np.eye(3)[int(np.argmin(np.abs(normal)))]
-    u = np.cross(normal, helper)
-    u /= np.linalg.norm(u)
-    return np.stack([u, np.cross(normal, u)])
 
 
 def cap(footprint: np.ndarray, step: float) -> np.ndarray:
@@ -86,7 +73,7 @@ def base_samples(points: np.ndarray, normals: np.ndarray, labels: np.ndarray, pl
     pts = np.asarray(points, dtype=np.float64)
     nrm = np.asarray(normals, dtype=np.float64)
     up = plane.normal / np.linalg.norm(plane.normal)
-    axes = _basis(up)
+    axes = np.stack(plane_basis(up))
     height = pts @ up - plane.offset
     out_p, out_n, out_src = [], [], []
     labels = np.asarray(labels)
@@ -97,7 +84,7 @@ def base_samples(points: np.ndarray, normals: np.ndarray, labels: np.ndarray, pl
     sideways = length > SIDEWAYS
     for piece in range(int(labels.max()) + 1 if len(labels) else 0):
         idx = np.flatnonzero(labels == piece)
-        s = _median_spacing(pts[idx])
+        s = spacing(pts[idx], sample=len(idx))  # all of them: a subsample reads sparser
         idx = idx[sideways[idx]]
         if s <= 0 or len(idx) < MIN_FOOTPRINT:
             continue

@@ -135,7 +135,8 @@ def spacing(points: np.ndarray, sample: int = 20000) -> float:
     return float(np.median(cKDTree(sub).query(sub, k=2)[0][:, 1]))
 
 
-def _plane_basis(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def plane_basis(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Two (3,) float unit axes u, v of the plane with (3,) unit ``normal`` (u x v = normal)."""
     helper = np.eye(3)[int(np.argmin(np.abs(normal)))]
     u = np.cross(normal, helper)
     u /= np.linalg.norm(u)
@@ -149,7 +150,7 @@ def _outline_area(points: np.ndarray, normal: np.ndarray, limit: int = 20000) ->
     if len(points) < 3:
         return 0.0
     pts = points[:: max(1, len(points) // limit)]
-    u, v = _plane_basis(normal)
+    u, v = plane_basis(normal)
     try:
         return float(ConvexHull(np.stack([pts @ u, pts @ v], axis=1)).volume)
     except QhullError:
@@ -210,7 +211,7 @@ def support_plane(points: np.ndarray, *, up: np.ndarray | None = None, seed: int
 def _spans(wall: np.ndarray, frame: np.ndarray, normal: np.ndarray) -> bool:
     """Whether the (m, 3) points of a wall of ``normal`` span at least :data:`WALL_SPAN` of the
     (n, 3) ``frame``'s extent along both of the wall's principal in-plane axes."""
-    u, v = _plane_basis(normal)
+    u, v = plane_basis(normal)
     flat = np.stack([wall @ u, wall @ v], axis=1)
     axes = np.linalg.svd(flat - flat.mean(axis=0), full_matrices=False)[2]  # (2, 2) rows
     in_plane = axes @ np.stack([u, v])  # (2, 3): the principal axes in 3D
@@ -228,7 +229,7 @@ def wall_face(points: np.ndarray, plane: Plane) -> dict:
     n = plane.normal / np.linalg.norm(plane.normal)
     flat = points - np.outer(plane.distance(points), n)  # onto the plane
     mean = flat.mean(axis=0)
-    basis = np.stack(_plane_basis(n))
+    basis = np.stack(plane_basis(n))
     uv = (flat - mean) @ basis.T
     try:
         ring = uv[ConvexHull(uv).vertices]
