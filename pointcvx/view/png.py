@@ -314,6 +314,11 @@ def caption_parts(legend: dict) -> list[str]:
         parts.append(f"{legend['hulls']} hulls")
     if legend.get("max_concavity") is not None:
         parts.append(f"max concavity {legend['max_concavity']:.3f}")
+    # what qualifies that number comes next, so a narrow picture keeps it
+    if legend.get("resolved_threshold"):
+        parts.append(f"sparse: cut at {legend['resolved_threshold']:.3g}")
+    if legend.get("budget"):
+        parts.append(f"stopped at the {legend['budget']}-hull budget")
     if legend.get("seconds") is not None:
         parts.append(f"{legend['seconds']:.1f} s")
     if legend.get("features"):
@@ -325,10 +330,6 @@ def caption_parts(legend: dict) -> list[str]:
         parts.append(f"{legend['removed']:,} removed (grey)")
     if legend.get("noise"):
         parts.append(f"{legend['noise']:,} noise")
-    if legend.get("resolved_threshold"):
-        parts.append(f"sparse: cut at {legend['resolved_threshold']:.3g}")
-    if legend.get("budget"):
-        parts.append(f"stopped at the {legend['budget']}-hull budget")
     return [str(p) for p in parts if p]
 
 
