@@ -31,7 +31,7 @@ from .options import (
     parse_length,
     split_kwargs,
 )
-from .result import Decomposition, cut_decomposition, merge_parts, share_budget
+from .result import Decomposition, check_scene_budget, cut_decomposition, merge_parts, share_budget
 from .scene.objects import is_scene, may_be_scene, object_pieces
 
 #: Modalities whose default feature source is the bundled model (docs/model.md compares the
@@ -278,10 +278,7 @@ def _decompose_scene(cloud: OrientedCloud, pieces: list[np.ndarray], dec: Decomp
                      deadline: Deadline | None = None) -> Decomposition:
     """A scene: each object (a connected piece of the isolated cloud) decomposed in its own
     normalised frame, so the threshold is relative to each object's size, then merged."""
-    if dec.max_hulls < len(pieces):
-        raise InputError(f"max_hulls is {dec.max_hulls}, less than the scene's {len(pieces)} objects "
-                         "(each needs a hull): raise it, or decompose the whole as one shape "
-                         "(scene off) or its largest object only (isolate largest)")
+    check_scene_budget(dec.max_hulls, len(pieces))  # before any object's work
     parts = []
     for k, idx in enumerate(pieces):
         obj = cloud.subset(idx).normalized()

@@ -14,7 +14,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from .cloud import OrientedCloud
-from .errors import OutputError
+from .errors import InputError, OutputError
 
 log = logging.getLogger(__name__)
 
@@ -397,18 +397,28 @@ def cut_decomposition(decomposer, cloud: OrientedCloud, params: dict, timings: d
                          _decomposer=decomposer)
 
 
+def check_scene_budget(max_hulls: int, n_objects: int) -> None:
+    """:class:`InputError` when a scene of ``n_objects`` cannot fit ``max_hulls`` hulls (each
+    object needs one)."""
+    if max_hulls < n_objects:
+        raise InputError(f"max_hulls is {max_hulls}, less than the scene's {n_objects} objects "
+                         "(each needs a hull): raise it, or decompose the whole as one shape "
+                         "(scene off) or its largest object only (isolate largest)")
+
+
 def share_budget(parts: list[Decomposition], max_hulls: int) -> list[Decomposition]:
     """A scene's objects, each decomposed with the whole budget, cut again so that together
     they hold at most ``max_hulls`` hulls: the budget goes where the concavity is
-    (:func:`~pointcvx.decomposition.tree.shared_budget`), and only objects whose share is
+    (:func:`~pointcvx.decomposition.tree.greedy_cut`), and only objects whose share is
     below what they used are cut again (their splits are reused; their merge runs again)."""
-    from .decomposition.tree import shared_budget
+    from .decomposition.tree import greedy_cut
 
+    check_scene_budget(max_hulls, len(parts))
     if sum(len(p.hulls) for p in parts) <= max_hulls:
         return parts
     decs = [p._decomposer for p in parts]
     thresholds = [d.stop_threshold(p.params["threshold"]) for d, p in zip(decs, parts, strict=True)]
-    counts = shared_budget(decs, thresholds, max_hulls)
+    counts = [len(leaves) for leaves in greedy_cut(decs, thresholds, max_hulls)]
     out = []
     for part, dec, threshold, k in zip(parts, decs, thresholds, counts, strict=True):
         if k < len(dec.cut(threshold, part.params["max_hulls"])):

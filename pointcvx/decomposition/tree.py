@@ -421,23 +421,7 @@ class Decomposer:
         """
         if max_hulls < 1:
             raise InputError(f"max_hulls must be at least 1, got {max_hulls}")
-        root = self.tree.nodes[0]
-        heap = [(-root.concavity, root.id)]
-        done: list[int] = []
-        while heap and len(heap) + len(done) < max_hulls:
-            neg, node_id = heapq.heappop(heap)
-            if -neg <= threshold:
-                heapq.heappush(heap, (neg, node_id))
-                break
-            children = self.split(node_id)
-            if children is None:
-                done.append(node_id)
-                continue
-            for c in children:
-                heapq.heappush(heap, (-self.tree.nodes[c].concavity, c))
-            if progress is not None:
-                progress(len(heap) + len(done), -heap[0][0] if heap else 0.0)
-        return sorted(done + [node_id for _, node_id in heap])
+        return greedy_cut([self], [threshold], max_hulls, progress)[0]
 
     def leaf_parts(self, leaves: list[int], threshold: float) -> tuple[list[np.ndarray], list[float]]:
         """The parts (index arrays) and concavities of ``leaves``, tiny leaves dropped or absorbed.
@@ -534,33 +518,35 @@ class Decomposer:
         return [parts[k] for k in sorted(parts)], [conc[k] for k in sorted(parts)]
 
 
-def shared_budget(decomposers: list[Decomposer], thresholds: list[float], max_hulls: int) -> list[int]:
-    """How many leaves each of several shapes' split trees gets when they share one budget of
-    ``max_hulls`` (a scene's objects): :meth:`Decomposer.cut`'s greedy loop run across all the
-    trees at once, always splitting the most concave part of any shape that is above its own
-    threshold (``thresholds[k]``, each in its shape's normalised frame). Each tree cut alone at
-    its count gives the same leaves, as its parts are split in the same order. Splits are
-    memoised, so the trees' earlier cuts are reused."""
-    if max_hulls < len(decomposers):
-        raise InputError(f"max_hulls ({max_hulls}) is less than the number of objects ({len(decomposers)})")
+def greedy_cut(decomposers: list[Decomposer], thresholds: list[float], max_hulls: int,
+               progress: Callable[[int, float], None] | None = None) -> list[list[int]]:
+    """Leaves (node ids, sorted) of each of several shapes' split trees under one budget of
+    ``max_hulls`` parts in all (one shape: :meth:`Decomposer.cut`; a scene's objects).
+
+    Pops the most concave part of any shape and splits it, until every part is at most its
+    shape's threshold (``thresholds[k]``, in that shape's normalised frame) or ``max_hulls``
+    parts exist. A tree cut alone at its count of leaves gives the same leaves, as its parts are
+    split in the same order; splits are memoised, so earlier cuts are reused.
+    ``progress(n_parts, worst_concavity)`` after each split.
+    """
     heap = [(-d.tree.nodes[0].concavity, k, 0) for k, d in enumerate(decomposers)]
     heapq.heapify(heap)
-    done = [0] * len(decomposers)
-    while heap and len(heap) + sum(done) < max_hulls:
+    done: list[list[int]] = [[] for _ in decomposers]
+    n_done = 0
+    while heap and len(heap) + n_done < max_hulls:
         neg, k, node_id = heapq.heappop(heap)
-        if -neg <= thresholds[k]:
-            done[k] += 1
-            continue
-        children = decomposers[k].split(node_id)
-        if children is None:
-            done[k] += 1
+        children = None if -neg <= thresholds[k] else decomposers[k].split(node_id)
+        if children is None:  # under its threshold, or too small to split
+            done[k].append(node_id)
+            n_done += 1
             continue
         for c in children:
             heapq.heappush(heap, (-decomposers[k].tree.nodes[c].concavity, k, c))
-    counts = done
-    for _, k, _ in heap:
-        counts[k] += 1
-    return counts
+        if progress is not None:
+            progress(len(heap) + n_done, -heap[0][0] if heap else 0.0)
+    for _, k, node_id in heap:
+        done[k].append(node_id)
+    return [sorted(leaves) for leaves in done]
 
 
 def planar_cut(points: np.ndarray, side: np.ndarray) -> np.ndarray | None:

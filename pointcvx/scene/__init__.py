@@ -54,7 +54,7 @@ def isolate_cloud(cloud: OrientedCloud, mode: str = "auto", crop=None, seed: int
     out.info["isolation"] = {"mode": mode, **found.report()}
     if close_bases and found.support is not None and found.labels is not None and out.mesh is None:
         out = with_closed_bases(out, found.labels[found.keep], found.support,
-                          SUPPORT_BAND * found.support.tolerance)
+                                SUPPORT_BAND * found.support.tolerance)
     if found.up is not None:
         out.info["up"] = np.round(found.up, 6).tolist()
     elif frame:  # no floor in view (a wall seen straight on): the image's up

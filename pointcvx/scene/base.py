@@ -70,6 +70,8 @@ def base_samples(points: np.ndarray, normals: np.ndarray, labels: np.ndarray, pl
     (m, 3) float points, (m, 3) float unit normals, (m,) int64 the index of the object point
     each sample was made from (for its colour and weight); m = 0 when nothing rests on it.
     """
+    from scipy.spatial import cKDTree
+
     pts = np.asarray(points, dtype=np.float64)
     nrm = np.asarray(normals, dtype=np.float64)
     up = plane.normal / np.linalg.norm(plane.normal)
@@ -103,8 +105,6 @@ def base_samples(points: np.ndarray, normals: np.ndarray, labels: np.ndarray, pl
             flat = pts[src] @ axes.T  # (k, 2) in the plane
             grid = cap(flat, step)
             if len(grid):
-                from scipy.spatial import cKDTree
-
                 out_p.append(grid @ axes + plane.offset * up)
                 out_n.append(np.tile(-up, (len(grid), 1)))
                 out_src.append(src[cKDTree(flat).query(grid)[1]])
