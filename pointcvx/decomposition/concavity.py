@@ -50,12 +50,13 @@ def hole_aware_distance(samples, points, normals) -> np.ndarray:
     """(n,) float: distance from each of (n, 3) ``samples`` to the surface that (m, 3) ``points``
     with (m, 3) unit outward ``normals`` sample, reading a hole in the sampling as surface.
 
-    A sample's distance is the Euclidean distance to its nearest point, except where the face
-    of that point surrounds it: of its :data:`HOLE_NEIGHBOURS` nearest points, those whose
-    normals are within :data:`HOLE_FACE_DEGREES` of the nearest one's (at least
-    :data:`HOLE_FACE_POINTS`), seen along their mean normal, leave no empty half-plane about
-    the sample. There it is its height above
-    that face, ``|(s - c) . n|`` with ``c`` their centroid and ``n`` their mean normal, if less.
+    A sample's distance is the Euclidean distance to its nearest point, except where the
+    surface surrounds it: of its :data:`HOLE_NEIGHBOURS` nearest points, those whose normals are
+    within :data:`HOLE_FACE_DEGREES` of the nearest one's are its face (at least
+    :data:`HOLE_FACE_POINTS`), and all of them, seen along the face's mean normal, leave no
+    empty half-plane about the sample (near an edge of a face the next face's points close the
+    side the face leaves open). There it is its height above that face, ``|(s - c) . n|``
+    with ``c`` the face points' centroid and ``n`` their mean normal, if less.
     A sample in a hole between random samples of a flat face is then about 0 instead of the
     hole's radius; one over a cavity, whose nearest points are the cavity's floor, is its
     height over the floor as before; one beyond the edge of the part has all its neighbours on
@@ -74,21 +75,21 @@ def hole_aware_distance(samples, points, normals) -> np.ndarray:
         return np.asarray(d if k == 1 else d[:, 0], dtype=np.float64)
     nb, nbn = points[nn], normals[nn]  # (n, k, 3)
     face = np.einsum("nkc,nc->nk", nbn, nbn[:, 0]) >= np.cos(np.radians(HOLE_FACE_DEGREES))
+    count = face.sum(axis=1)
     mean = (nbn * face[:, :, None]).sum(axis=1)
     mean /= np.maximum(np.linalg.norm(mean, axis=1, keepdims=True), 1e-12)
-    # A tangent basis (u, v) of each mean normal; the angle of each face point about the sample.
+    # A tangent basis (u, v) of each mean normal; the angle of each neighbour about the sample.
     helper = np.where(np.abs(mean[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
     u = np.cross(mean, helper)
     u /= np.maximum(np.linalg.norm(u, axis=1, keepdims=True), 1e-12)
     v = np.cross(mean, u)
     rel = nb - samples[:, None, :]
-    angle = np.arctan2(np.einsum("nkc,nc->nk", rel, v), np.einsum("nkc,nc->nk", rel, u))
-    angle = np.sort(np.where(face, angle, 4 * np.pi), axis=1)  # off-face points last
-    count = face.sum(axis=1)
-    first = angle[:, :1]
-    last = np.take_along_axis(angle, (count - 1)[:, None], axis=1)
-    steps = np.where(np.arange(1, k) < count[:, None], np.diff(angle, axis=1), 0.0)
-    widest = np.maximum(steps.max(axis=1), (first + 2 * np.pi - last)[:, 0])
+    # Every neighbour, of the face or not, closes a side of the sample: near an edge of the
+    # face the next face's points, seen along this face's normal, lie on the edge, so a hole
+    # there is surrounded; beyond the edge they lie between the face and the sample, which
+    # keeps an empty side.
+    angle = np.sort(np.arctan2(np.einsum("nkc,nc->nk", rel, v), np.einsum("nkc,nc->nk", rel, u)), axis=1)
+    widest = np.maximum(np.diff(angle, axis=1).max(axis=1), angle[:, 0] + 2 * np.pi - angle[:, -1])
     hole = (count >= HOLE_FACE_POINTS) & (widest < np.pi)
     out = d[:, 0].copy()
     if hole.any():
@@ -145,7 +146,7 @@ HOLE_SURFACE_SPACINGS = 1.0
 
 
 def _max_outside(solid, samples: np.ndarray, dist: np.ndarray, surface_gap: float = 0.0,
-                 tol: float = SURFACE_TOL) -> float:
+                 tol: float = SURFACE_TOL, foreign=None) -> float:
     """max of (n,) ``dist`` over the (n, 3) hull-surface ``samples`` that are concavity (0 if
     none): those in the air (outside ``solid``), and those on the solid's surface (within
     ``tol``) further than ``surface_gap`` from the part.
@@ -160,6 +161,12 @@ def _max_outside(solid, samples: np.ndarray, dist: np.ndarray, surface_gap: floa
     surface, which is then asked only where it decides: a far sample (beyond ``surface_gap``)
     reported outside counts whether it is on the surface or in the air, and a near one reported
     inside counts in neither case.
+
+    ``foreign`` ((k, 3) samples -> (k,) bool: whether the cloud point nearest each is another
+    part's), for a solid rebuilt from samples: a far sample on the surface counts only where it
+    is foreign, on another part's face. One whose nearest point is the part's own lies in a hole
+    of the part's sampling (a sparse scan's holes reach four spacings and more, and the rebuilt
+    solid's rounded edges put such samples on either side of it).
     """
     order = np.argsort(-dist)
     s, step = 0, 64
@@ -168,10 +175,15 @@ def _max_outside(solid, samples: np.ndarray, dist: np.ndarray, surface_gap: floa
         outside = ~solid.contains(samples[chunk])
         far = dist[chunk] > surface_gap
         counts = far & outside
-        ask = np.flatnonzero(far != outside)  # far and inside, or near and outside
+        ask = far != outside  # far and inside, or near and outside
+        surface_counts = far
+        if foreign is not None:
+            surface_counts = far & foreign(samples[chunk])
+            ask |= far & outside & ~surface_counts  # in the air, or in a hole of the part's own
+        ask = np.flatnonzero(ask)
         if len(ask):
             on_surface = solid.distance(samples[chunk[ask]]) <= tol
-            counts[ask] = np.where(on_surface, far[ask], outside[ask])
+            counts[ask] = np.where(on_surface, surface_counts[ask], outside[ask])
         if counts.any():
             return float(dist[chunk[int(np.argmax(counts))]])
         s, step = s + step, 4 * step
@@ -199,6 +211,7 @@ def part_concavity(
     surface_gap: float | None = None,
     normals=None,
     surface_tol: float | None = None,
+    foreign=None,
     return_terms: bool = False,
 ):
     """Concavity of a part known by its surface samples, inside the whole shape's solid.
@@ -232,6 +245,10 @@ def part_concavity(
         How far from the solid's surface a point still lies on it (default
         :data:`SURFACE_TOL`, for an exact solid). Given (a solid rebuilt from samples), volume
         samples outside the solid but within it are also the part's.
+    foreign : callable, optional
+        (k, 3) points -> (k,) bool, whether the cloud point nearest each belongs to another
+        part. Given (a solid rebuilt from samples), a hull sample on the surface far from the
+        part counts only where it is foreign (see :func:`_max_outside`).
     return_terms : bool
         Return a dict of the terms instead of the concavity alone.
 
@@ -297,7 +314,7 @@ def part_concavity(
         if surface_gap is None:
             surface_gap = GAP_SPACINGS * sample_spacing(pts)
         tol = SURFACE_TOL if surface_tol is None else surface_tol
-        hb_hull = _max_outside(solid, hs, d_hs, surface_gap, tol)
+        hb_hull = _max_outside(solid, hs, d_hs, surface_gap, tol, foreign)
     terms = concavity_terms(hb_part, hb_hull, hull.volume, part_volume, k)
     terms["outside_fraction"] = outside_fraction
     return terms if return_terms else terms["concavity"]

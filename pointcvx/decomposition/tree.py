@@ -184,6 +184,8 @@ class Decomposer:
         self._priority = np.random.default_rng(self.seed).permutation(len(self.points))
         # Typical distance between neighbouring points (for the coarse estimate's error bound).
         self.spacing = sample_spacing(self.points)
+        # Of every point of a cloud: which part a hull sample's nearest point is (_foreign).
+        self._kdtree = None if self.is_mesh else cKDTree(self.points)
         self.graph = neighbour_graph(self.points)
         self.tree = SplitTree()
         self.evaluations = 0
@@ -265,7 +267,7 @@ class Decomposer:
         indices = np.sort(indices)
         n_samples = min(self.concavity_samples, self.rank_samples) if coarse else self.concavity_samples
         cut = None
-        n_part = len(indices)
+        n_part, full = len(indices), indices
         if coarse and len(indices) > self.rank_points:
             # The part's rank_points points of lowest priority: exactly its points of priority
             # <= cut, so the same cut applied to the other points takes the same share of them.
@@ -297,10 +299,18 @@ class Decomposer:
         # A solid rebuilt from samples: hull samples in the holes of the part's sampling are
         # surface, and its surface is known to within a sample spacing.
         rebuilt = {} if self.is_mesh else {"normals": self.normals[measured],
-                                           "surface_tol": HOLE_SURFACE_SPACINGS * self.spacing}
+                                           "surface_tol": HOLE_SURFACE_SPACINGS * self.spacing,
+                                           "foreign": self._foreign(np.concatenate([full, measured]))}
         conc = part_concavity(self.points[measured], self.solid, hull=hull, n_hull_samples=n_samples,
                               n_volume_samples=n_samples, seed=self.seed, surface_gap=gap, **rebuilt)
         return float(conc), float(hull.volume)
+
+    def _foreign(self, members: np.ndarray):
+        """(k, 3) points -> (k,) bool: whether the cloud point nearest each is outside
+        ``members`` (indices), i.e. on another part's surface."""
+        inside = np.zeros(len(self.points), bool)
+        inside[members] = True
+        return lambda pts: ~inside[self._kdtree.query(pts)[1]]
 
     def coarse_margin(self, n_points: int) -> float:
         """How far above the full concavity the coarse estimate of a part of ``n_points``
