@@ -190,13 +190,14 @@ def _max_outside(solid, samples: np.ndarray, dist: np.ndarray, surface_gap: floa
     return 0.0
 
 
-def sample_spacing(points: np.ndarray) -> float:
-    """Median distance from each of the (n, 3) ``points`` to its nearest neighbour."""
+def sample_spacing(points: np.ndarray, tree=None) -> float:
+    """Median distance from each of the (n, 3) ``points`` to its nearest neighbour. ``tree``:
+    a ``scipy.spatial.cKDTree`` of ``points`` if already built."""
     from scipy.spatial import cKDTree
 
     if len(points) < 2:
         return 0.0
-    return float(np.median(cKDTree(points).query(points, k=2)[0][:, 1]))
+    return float(np.median((cKDTree(points) if tree is None else tree).query(points, k=2)[0][:, 1]))
 
 
 def part_concavity(

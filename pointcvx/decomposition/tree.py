@@ -83,11 +83,13 @@ class SplitTree:
         ]
 
 
-def neighbour_graph(points: np.ndarray, k: int = 10, radius_factor: float = 3.0) -> sparse.csr_matrix:
+def neighbour_graph(points: np.ndarray, k: int = 10, radius_factor: float = 3.0,
+                    tree: cKDTree | None = None) -> sparse.csr_matrix:
     """(n, n) symmetric k-NN adjacency of (n, 3) surface points, without edges much longer than
-    the typical spacing (so separate components stay separate)."""
+    the typical spacing (so separate components stay separate). ``tree``: a kd-tree of
+    ``points`` if already built."""
     k = int(min(k, len(points) - 1))
-    dist, idx = cKDTree(points).query(points, k=k + 1)
+    dist, idx = (cKDTree(points) if tree is None else tree).query(points, k=k + 1)
     dist, idx = dist[:, 1:], idx[:, 1:]
     cap = radius_factor * np.median(dist[:, -1])
     keep = dist <= cap
@@ -182,11 +184,12 @@ class Decomposer:
         # A fixed random priority per point: a part's coarse subsample is its rank_points
         # points of lowest priority, the same points whichever proposal the part comes from.
         self._priority = np.random.default_rng(self.seed).permutation(len(self.points))
+        # Of every point: the spacing, the neighbour graph, and on a cloud which part a hull
+        # sample's nearest point is (_foreign).
+        self._kdtree = cKDTree(self.points)
         # Typical distance between neighbouring points (for the coarse estimate's error bound).
-        self.spacing = sample_spacing(self.points)
-        # Of every point of a cloud: which part a hull sample's nearest point is (_foreign).
-        self._kdtree = None if self.is_mesh else cKDTree(self.points)
-        self.graph = neighbour_graph(self.points)
+        self.spacing = sample_spacing(self.points, self._kdtree)
+        self.graph = neighbour_graph(self.points, tree=self._kdtree)
         self.tree = SplitTree()
         self.evaluations = 0
         root = np.arange(len(self.points))
