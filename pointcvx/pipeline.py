@@ -201,6 +201,9 @@ def decompose(x: Any, *, progress: Progress | None = None, **options: Any) -> De
     TimeLimitError
         ``timeout`` seconds passed before the result was ready (:mod:`pointcvx.deadline`).
     """
+    if progress is not None and not callable(progress):  # fails now, not at the first step
+        raise InputError(f"progress must be a callable progress(stage, done, total) or None, "
+                         f"got {type(progress).__name__}")
     dec_kw, load_kw = split_kwargs(options)
     load_kw.setdefault("n_points", DECOMPOSE_POINTS)
     dec, load = DecomposeOptions(**dec_kw), LoadOptions(**load_kw)

@@ -127,6 +127,7 @@ def test_bad_values_are_the_same_error_in_the_api_and_usage_errors_on_every_comm
     ({"merge": 1}, "merge must be True or False"),
     ({"features": 3}, "features must be a string"),
     ({"model": 3}, "model must be a path"),
+    ({"progress": False}, "progress must be a callable"),
 ])
 def test_wrong_types_are_input_errors(kwargs, fragment):
     with pytest.raises(InputError, match=fragment):

@@ -178,7 +178,9 @@ def _max_outside(solid, samples: np.ndarray, dist: np.ndarray, surface_gap: floa
         ask = far != outside  # far and inside, or near and outside
         surface_counts = far
         if foreign is not None:
-            surface_counts = far & foreign(samples[chunk])
+            surface_counts = far.copy()  # the kd-tree is asked about the far samples only
+            if far.any():
+                surface_counts[far] = foreign(samples[chunk[far]])
             ask |= far & outside & ~surface_counts  # in the air, or in a hole of the part's own
         ask = np.flatnonzero(ask)
         if len(ask):
