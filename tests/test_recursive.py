@@ -275,6 +275,55 @@ def test_a_clouds_tiny_leaves_are_noise_in_no_part():
     assert np.array_equal(np.sort(np.concatenate(parts)), everyone)
 
 
+def test_a_clouds_scattered_leaves_are_noise_and_a_meshs_are_kept():
+    """A leaf of 12 points in six pairs strewn over the L (more than a tiny leaf's 7, but no
+    piece of the neighbour graph among them holds 8: what is left of a part after its largest
+    piece is split off, whose hull is a sliver spanning the gaps) is noise on a cloud, its points
+    in no part; the same leaf of a mesh's samples stays a part."""
+    from scipy.spatial import cKDTree
+
+    for points_only in (True, False):
+        dec, _, rest_leaves, _, _ = stray_setup(points_only=points_only)
+        spots = np.array([[-0.9, -0.9, -0.9], [0.9, 0.9, -0.9], [-0.9, 0.9, 0.9], [-0.9, -0.9, 0.4],
+                          [0.9, -0.9, -0.4], [0.0, 0.9, -0.9]])
+        pairs = np.unique(cKDTree(dec.points).query(spots, k=2)[1].ravel())
+        assert len(pairs) == 12
+        assert np.bincount(dec._components(pairs)).max() < 8  # the precondition: scattered
+        leaves = []
+        for leaf in rest_leaves:
+            idx = np.setdiff1d(dec.tree.nodes[leaf].indices, pairs)
+            if len(idx) >= 8:
+                leaves.append(dec.tree.add(None, idx, dec.concavity(idx)).id)
+        kept = [dec.tree.nodes[leaf].indices for leaf in leaves]
+        leaves.append(dec.tree.add(None, pairs, dec.concavity(pairs)).id)
+        parts, _ = dec.leaf_parts(leaves, 1.0)  # 1.0: no leaf is a stray by its concavity
+        if points_only:
+            assert len(parts) == len(kept)
+            assert all(np.array_equal(p, q) for p, q in zip(parts, kept, strict=True))
+            assert not np.isin(pairs, np.concatenate(parts)).any()
+        else:
+            assert any(np.array_equal(p, pairs) for p in parts)
+            assert len(parts) == len(kept) + 1
+
+
+def test_a_depth_frames_hulls_are_not_slivers_of_scattered_points():
+    """End to end on a real depth frame (five_people.pcd, whose split left a hull of 9 points
+    0.85 long and one of 11 before scattered leaves were noise): every hull's points hold a piece
+    of the neighbour graph of at least 8 points."""
+    from scipy.sparse import csgraph
+
+    from conftest import DATA
+    from pointcvx.decomposition.tree import neighbour_graph
+
+    result = pointcvx.decompose(DATA / "raw_scans" / "five_people.pcd", seed=0)
+    assert result.objects is not None and len(result.hulls) > 10
+    graph = neighbour_graph(result.cloud.points)  # of the whole frame: each object's, near enough
+    for h in range(len(result.hulls)):
+        members = np.flatnonzero(result.labels == h)
+        sizes = np.bincount(csgraph.connected_components(graph[members][:, members], directed=False)[1])
+        assert sizes.max() >= 8, (h, len(members), sizes)
+
+
 def test_a_real_splats_noise_is_labelled_minus_one_and_reported():
     """End to end on a real splat whose split leaves a few tiny leaves (biker.ply: 9 points):
     their points get label -1 and count as noise in the cloud's info, the report and the

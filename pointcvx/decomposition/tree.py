@@ -36,8 +36,10 @@ from .kmeans import nearest_centre, two_means
 log = logging.getLogger(__name__)
 
 MIN_PART_POINTS = 4
-# A point cloud's leaves of fewer than 2 * MIN_PART_POINTS points are noise (floaters, scattered
-# sensor points) when together they are at most this fraction of the cloud; see leaf_parts.
+# A point cloud's leaves of fewer than 2 * MIN_PART_POINTS points, or whose points are scattered
+# (no piece of the neighbour graph among them holds 2 * MIN_PART_POINTS), are noise (floaters,
+# scattered sensor points) when together they are at most this fraction of the cloud; see
+# leaf_parts.
 NOISE_FRACTION = 0.01
 
 
@@ -331,6 +333,14 @@ class Decomposer:
         sub = self.graph[indices][:, indices]
         return csgraph.connected_components(sub, directed=False)[1]
 
+    def _scattered(self, indices: np.ndarray) -> bool:
+        """Whether no piece of the neighbour graph among the points ``indices`` holds
+        ``2 * MIN_PART_POINTS`` of them (checked only for parts of under
+        ``NOISE_FRACTION`` of the cloud: a larger one is never dropped as noise)."""
+        if len(indices) > NOISE_FRACTION * len(self.points):
+            return False
+        return int(np.bincount(self._components(indices)).max()) < 2 * MIN_PART_POINTS
+
     def _embedding(self, indices: np.ndarray, blend: float) -> np.ndarray:
         xyz = self.points[indices]
         xyz = (xyz - xyz.mean(axis=0)) / max(float(np.linalg.norm(xyz.std(axis=0))), 1e-9)
@@ -445,17 +455,23 @@ class Decomposer:
         of its nearest point in another leaf, and those parts are measured again. On a scan or
         splat every tiny leaf is noise (a floater, scattered sensor points): absorbing it raised
         a clean neighbour's concavity from under 0.1 to 0.37 on a depth frame, and its own hull
-        is a sliver. Its points belong to no part (label -1), as long as all of them together
-        are at most ``NOISE_FRACTION`` of the cloud; beyond that they are absorbed as on a mesh.
+        is a sliver. So is a *scattered* leaf, whose points no piece of the neighbour graph holds
+        ``2 * MIN_PART_POINTS`` of: the rest of a part after its largest piece was split off
+        (sensor points strewn round an object, pairs of flying pixels), whose hull is a sliver
+        spanning the gaps (on five_people.pcd one of 9 points 0.85 long, on kinect_frame.pcd a
+        sheet of 12 points as wide as the box beside it). Its points belong to no part (label
+        -1), as long as all such leaves together are at most ``NOISE_FRACTION`` of the cloud;
+        beyond that they are absorbed as on a mesh.
         """
         parts = [self.tree.nodes[leaf].indices for leaf in leaves]
         conc = [self.tree.nodes[leaf].concavity for leaf in leaves]
         tiny = {k for k, idx in enumerate(parts) if len(idx) < 2 * MIN_PART_POINTS}
-        if not self.is_mesh and tiny and len(tiny) < len(parts):
-            dropped = sum(len(parts[k]) for k in tiny)
-            if dropped <= NOISE_FRACTION * len(self.points):
-                log.debug("dropped %d tiny parts as noise (%d points)", len(tiny), dropped)
-                keep = [k for k in range(len(parts)) if k not in tiny]
+        if not self.is_mesh:
+            noise = tiny | {k for k, idx in enumerate(parts) if k not in tiny and self._scattered(idx)}
+            dropped = sum(len(parts[k]) for k in noise)
+            if noise and len(noise) < len(parts) and dropped <= NOISE_FRACTION * len(self.points):
+                log.debug("dropped %d tiny or scattered parts as noise (%d points)", len(noise), dropped)
+                keep = [k for k in range(len(parts)) if k not in noise]
                 return [parts[k] for k in keep], [conc[k] for k in keep]
         stray = {k for k in tiny if conc[k] > threshold}
         if not stray or len(stray) == len(parts):
@@ -492,8 +508,8 @@ class Decomposer:
         rough: dict[tuple[int, int], float] = {}  # coarse estimates of joint parts
         full: dict[tuple[int, int], float] = {}
         next_id = len(parts)
+        coo = self.graph.tocoo()  # the graph's edges, once: merging only relabels their ends
         while len(parts) > 1:
-            coo = self.graph.tocoo()
             a, b = label[coo.row], label[coo.col]
             link = (a < b) & (a >= 0)
             pairs = {(int(x), int(y)) for x, y in zip(a[link], b[link], strict=True)}
