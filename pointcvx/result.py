@@ -368,6 +368,9 @@ def cut_decomposition(decomposer, cloud: OrientedCloud, params: dict, timings: d
             parts, concavity = decomposer.merge(leaves, threshold)
         else:
             parts, concavity = decomposer.leaf_parts(leaves, threshold)
+        before = sum(len(idx) for idx in parts)
+        parts, concavity = decomposer.drop_air(parts, concavity)
+        air_points = before - sum(len(idx) for idx in parts)
     timings["merge"] = time.perf_counter() - t
     if len(leaves) >= params["max_hulls"] and max(concavity, default=0.0) > threshold:
         # The budget, not the threshold, stopped the split: the user should know to raise it.
@@ -386,7 +389,10 @@ def cut_decomposition(decomposer, cloud: OrientedCloud, params: dict, timings: d
         hulls.append(ConvexHull(back.inverse(h.vertices), h.faces.astype(np.int64), float(conc),
                                 int(len(idx))))
     timings["hulls"] = time.perf_counter() - t
-    noise = int(np.count_nonzero(labels < 0))
+    noise = int(np.count_nonzero(labels < 0)) - air_points
+    # A mesh's surface points of parts whose hulls held no material (Decomposer.drop_air).
+    if air_points or "air_points" in cloud.info:
+        cloud = cloud.replace(info={**cloud.info, "air_points": air_points})
     if noise or "noise_points" in cloud.info:  # a recut may drop none where an earlier cut did
         cloud = cloud.replace(info={**cloud.info, "noise_points": noise})
     if start is not None:

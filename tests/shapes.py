@@ -39,3 +39,13 @@ def two_boxes() -> trimesh.Trimesh:
 def torus() -> trimesh.Trimesh:
     return trimesh.creation.torus(major_radius=1.0, minor_radius=0.3, major_sections=48,
                                   minor_sections=16)
+
+
+def pocket_block() -> trimesh.Trimesh:
+    """A 2x2x1 block with a 1x1x0.4 pocket sunk into the middle of its top (floor at z = 0.6)."""
+    import manifold3d as m3d
+
+    block = m3d.Manifold.cube([2.0, 2.0, 1.0])
+    pocket = m3d.Manifold.cube([1.0, 1.0, 0.5]).translate([0.5, 0.5, 0.6])
+    mesh = (block - pocket).to_mesh()
+    return trimesh.Trimesh(np.asarray(mesh.vert_properties)[:, :3], np.asarray(mesh.tri_verts))

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import trimesh
-from shapes import l_block, torus
+from shapes import l_block, pocket_block, torus
 
 import pointcvx
 from pointcvx.decomposition.tree import Decomposer
@@ -476,3 +476,30 @@ def test_a_box_scan_without_normals_is_one_hull(tmp_path, n):
     result = pointcvx.decompose(str(path), seed=0)
     assert len(result.hulls) == 1
     assert result.max_concavity < 0.1
+
+
+def test_a_meshs_air_part_is_dropped_where_other_hulls_cover_it():
+    """A part made of a pocket's floor and walls (its hull is the pocket: air, no material) is
+    dropped when the block's other part covers its points, kept when nothing else covers them,
+    and kept on a cloud; parts holding material always stay."""
+    from pointcvx.solid import solid_for
+
+    cloud = as_cloud(pocket_block(), n_points=6000, seed=0)
+    raw = cloud.normalization.inverse(cloud.points)
+    foot = np.all((raw[:, :2] > 0.5 - 1e-6) & (raw[:, :2] < 1.5 + 1e-6), axis=1)
+    pocket = np.flatnonzero(foot & (raw[:, 2] > 0.6 - 1e-6) & (raw[:, 2] < 1.0 - 1e-6))
+    rest = np.setdiff1d(np.arange(len(cloud)), pocket)
+    bottom = np.flatnonzero(raw[:, 2] < 0.3)
+    assert len(pocket) > 100 and len(bottom) > 100
+    solid = solid_for(cloud)
+    for is_mesh in (True, False):
+        dec = Decomposer(cloud.points, cloud.normals, np.zeros((len(cloud), 1)), solid,
+                         is_mesh=is_mesh, seed=0)
+        parts, conc = dec.drop_air([rest, pocket], [0.05, 0.06])
+        if is_mesh:  # the block's hull covers the pocket: the air part goes
+            assert len(parts) == 1 and np.array_equal(parts[0], rest) and conc == [0.05]
+        else:
+            assert len(parts) == 2
+        # Nothing but the air part covers the pocket's floor and walls: it stays.
+        parts, conc = dec.drop_air([bottom, pocket], [0.05, 0.06])
+        assert len(parts) == 2 and np.array_equal(parts[1], pocket)

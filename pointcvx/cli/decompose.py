@@ -87,6 +87,8 @@ def summary_line(summary: dict, limits) -> str:
         line += "; removed " + ", ".join(f"{n} {why.rstrip('s')} points" for why, n in removed.items())
     if summary.get("noise_points"):
         line += f"; {summary['noise_points']} noise points in no hull"
+    if summary.get("air_points"):
+        line += f"; {summary['air_points']} points of hulls holding no material left out"
     if summary.get("resolved_threshold"):
         line += (f"; too sparse to resolve threshold {summary['threshold']:g}, so cut at "
                  + ", ".join(f"{t:.3g} ({name})" for name, t in summary["resolved_threshold"].items()))
@@ -168,6 +170,7 @@ def run(args: argparse.Namespace) -> int:
     if "isolation" in result.cloud.info:
         summary["removed"] = result.cloud.info["isolation"]["removed"]
     summary["noise_points"] = int(result.cloud.info.get("noise_points", 0))
+    summary["air_points"] = int(result.cloud.info.get("air_points", 0))
     summary["threshold"] = result.params["threshold"]
     summary["resolved_threshold"] = result.resolved_thresholds
     summary["max_hulls"] = result.params["max_hulls"]

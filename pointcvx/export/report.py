@@ -31,6 +31,7 @@ def report(result) -> dict[str, Any]:
               "mean_concavity": float(result.concavity.mean()) if hulls else 0.0,
               "points": int(len(result.labels)),
               "noise_points": int(result.cloud.info.get("noise_points", 0)),
+              "air_points": int(result.cloud.info.get("air_points", 0)),
               "max_offset": float(offsets.max()) if len(offsets) else 0.0}
     extra = {}
     if result.objects:
