@@ -102,3 +102,11 @@ def pmap(fn: Callable[[T], R], items: Iterable[T]) -> list[R]:
     if errors:
         raise errors[min(errors)]
     return results
+
+
+def even_slices(n: int, chunks: int) -> list[slice]:
+    """``chunks`` consecutive slices of ``range(n)`` as even as can be (the empty ones left out):
+    the runs of rows that :func:`pmap` spreads over its threads."""
+    chunks = max(int(chunks), 1)
+    cuts = [n * i // chunks for i in range(chunks + 1)]
+    return [slice(lo, hi) for lo, hi in zip(cuts[:-1], cuts[1:], strict=True) if hi > lo]

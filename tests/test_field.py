@@ -4,6 +4,7 @@ settings, and that it never imports torch."""
 
 from __future__ import annotations
 
+import math
 import subprocess
 import sys
 
@@ -232,3 +233,85 @@ def test_unique_rows_equal_numpy_unique():
     np.testing.assert_array_equal(used, ref_used)
     np.testing.assert_array_equal(inv, ref_inv)
     assert _unique_rows(np.zeros(0, np.int64), 4)[0].size == 0
+
+
+def test_the_negatives_gradient_spread_equals_scipys_sparse_product_bit_for_bit(monkeypatch):
+    """_spread builds the fit's sparse (pool x queries) product with scipy's compiled routines
+    directly: the same float32 sums in the same order as csr_matrix((data, (rows, cols))) @ q,
+    negatives drawn twice for one query included; so does its fallback, scipy's public path."""
+    from scipy import sparse
+
+    from pointcvx.features import field
+
+    rng = np.random.default_rng(4)
+    a, m, n, k = 40, 16, 90, 32
+    negative = rng.integers(0, n, (a, m))
+    negative[0, :4] = negative[0, 5]  # one negative four times over for one query
+    weights = rng.normal(size=(2 * a, m + 1)).astype(np.float32)[:, 1:]  # a strided view, as in the fit
+    queries = rng.normal(size=(2 * a, k)).astype(np.float32)
+    rows = np.concatenate([negative, negative]).ravel()
+    cols = np.repeat(np.arange(2 * a), m)
+    ref = np.asarray(sparse.csr_matrix((weights.ravel(), (rows, cols)), shape=(n, 2 * a)) @ queries)
+    got = field._spread(negative, weights, queries, n)
+    assert got.dtype == np.float32 and got.shape == (n, k)
+    np.testing.assert_array_equal(got, ref)
+    loose = np.zeros((n, k))
+    np.add.at(loose, rows, weights.ravel()[:, None].astype(np.float64) * queries[cols])
+    np.testing.assert_allclose(got, loose, rtol=1e-4, atol=1e-4)  # and it is that sum
+    monkeypatch.setattr(field, "_sparsetools", None)
+    np.testing.assert_array_equal(field._spread(negative, weights, queries, n), ref)
+
+
+def _reference_fit(triplets, steps, lr, seed, batch=128, negatives_per_step=64, tau=0.3,
+                   betas=(0.9, 0.999), eps=1e-8):
+    """fit_field's loop with Adam written per weight and bias array, as it was before the
+    parameters became views of one vector."""
+    from pointcvx.features.field import STEP_CHUNKS, _unique_rows
+    from pointcvx.workers import even_slices
+
+    rng = np.random.default_rng(seed)
+    field = FourierField.initial(rng)
+    pool = np.asarray(triplets.pool, np.float32)
+    positive = np.asarray(triplets.positive, np.float32)
+    anchor, negative = triplets.anchor, triplets.negative
+    moments = [[(np.zeros_like(p), np.zeros_like(p)) for p in layer] for layer in field.params]
+    enc_pool, enc_pos = field._encode(pool), field._encode(positive)
+    b1, b2 = betas
+    for step in range(steps):
+        rate = lr * 0.5 * (1.0 + math.cos(math.pi * step / steps))
+        pick = rng.integers(0, len(anchor), min(batch, len(anchor)))
+        cols = rng.integers(0, negative.shape[1], (len(pick), negatives_per_step))
+        neg = np.take_along_axis(negative[pick], cols, 1)
+        used, inv = _unique_rows(np.concatenate([anchor[pick], neg.ravel()]), len(pool))
+        rows = np.concatenate([enc_pool[used], enc_pos[pick]])
+        chunks = even_slices(len(rows), STEP_CHUNKS)
+        ahead = [field._forward_encoded(rows[c]) for c in chunks]
+        feats = np.concatenate([f for f, _, _ in ahead])
+        _, g_pool, g_p = pool_info_nce_grad(feats[: len(used)], inv[: len(pick)], feats[len(used):],
+                                            inv[len(pick):].reshape(neg.shape), tau, STEP_CHUNKS)
+        grad = np.concatenate([g_pool, g_p])
+        back = [field._backward(grad[c], *a) for c, a in zip(chunks, ahead, strict=True)]
+        grads = [tuple(sum(g[i][j] for g in back) for j in range(2)) for i in range(len(back[0]))]
+        t = step + 1
+        for layer, layer_grads, layer_moments in zip(field.params, grads, moments, strict=True):
+            for p, g, (mo, v) in zip(layer, layer_grads, layer_moments, strict=True):
+                mo *= b1
+                mo += (1 - b1) * g
+                v *= b2
+                v += (1 - b2) * g * g
+                p -= (rate / (1 - b1**t)) * mo / (np.sqrt(v / (1 - b2**t)) + eps)
+    return field
+
+
+def test_the_fits_one_vector_adam_equals_adam_per_array_bit_for_bit(lshape):
+    from threadpoolctl import threadpool_limits
+
+    cloud, solid = lshape
+    t = sample_field_triplets(solid, cloud.points, cloud.normals, n_anchors=512, seed=1)
+    got = fit_field(t, steps=12, lr=3e-3, seed=2)
+    with threadpool_limits(1):  # as the fit's products run: one BLAS thread
+        ref = _reference_fit(t, steps=12, lr=3e-3, seed=2)
+    for (w, b), (rw, rb) in zip(got.params, ref.params, strict=True):
+        np.testing.assert_array_equal(w, rw)
+        np.testing.assert_array_equal(b, rb)
+    assert not np.array_equal(got.params[0][0], FourierField.initial(np.random.default_rng(2)).params[0][0])

@@ -503,3 +503,20 @@ def test_a_meshs_air_part_is_dropped_where_other_hulls_cover_it():
         # Nothing but the air part covers the pocket's floor and walls: it stays.
         parts, conc = dec.drop_air([bottom, pocket], [0.05, 0.06])
         assert len(parts) == 2 and np.array_equal(parts[1], pocket)
+
+
+def test_in_box_equals_the_all_of_six_comparisons():
+    """A part's measure filters the whole cloud by the hull's box from coordinate rows
+    (tree.in_box): the same points as np.all over the (n, 3) comparisons, those exactly on a
+    face of the box included."""
+    from pointcvx.decomposition.tree import in_box
+
+    rng = np.random.default_rng(7)
+    pts = rng.uniform(-1, 1, (5000, 3))
+    lo, hi = np.array([-0.3, -0.9, 0.1]), np.array([0.4, 0.2, 0.8])
+    pts[:30] = rng.uniform(lo, hi, (30, 3))
+    pts[:10, 0], pts[10:20, 1], pts[20:30, 2] = lo[0], hi[1], hi[2]  # on the box's faces
+    got = in_box(np.ascontiguousarray(pts.T), lo, hi)
+    ref = np.all((pts >= lo) & (pts <= hi), axis=1)
+    np.testing.assert_array_equal(got, ref)
+    assert got[:30].all() and 0 < got.sum() < len(pts)

@@ -123,6 +123,19 @@ def split_score(a: tuple[float, float], b: tuple[float, float]) -> tuple[float, 
     return (max(ca, cb), ca + cb, va + vb if ca + cb == 0.0 else 0.0)
 
 
+def in_box(columns: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """(n,) bool: which points lie in the box [lo, hi] (both (3,) float), from their (3, n)
+    float coordinate rows: ``np.all((points >= lo) & (points <= hi), axis=1)``, 30x faster
+    (a reduction along an axis of length 3 is slow in NumPy, and every measure of a part
+    filters the whole cloud)."""
+    inside = columns[0] >= lo[0]
+    for k, (a, b) in enumerate(zip(lo, hi, strict=True)):
+        if k:
+            inside &= columns[k] >= a
+        inside &= columns[k] <= b
+    return inside
+
+
 class Decomposer:
     """Recursive splitting of one shape, with memoised splits so cuts can be redone cheaply.
 
@@ -196,6 +209,7 @@ class Decomposer:
         # Of every point: the spacing, the neighbour graph, and on a cloud which part a hull
         # sample's nearest point is (_foreign).
         self._kdtree = cKDTree(self.points)
+        self._columns = np.ascontiguousarray(self.points.T)  # x, y, z rows for in_box
         # Typical distance between neighbouring points (for the coarse estimate's error bound).
         self.spacing = sample_spacing(self.points, self._kdtree)
         self.graph = neighbour_graph(self.points, tree=self._kdtree)
@@ -290,7 +304,7 @@ class Decomposer:
             return 0.0, 0.0
         hull = convex_hull(self.points[indices])
         lo, hi = hull.bounds
-        near = np.all((self.points >= lo) & (self.points <= hi), axis=1)
+        near = in_box(self._columns, lo, hi)
         if cut is not None:
             near &= self._priority <= cut
         near[indices] = False
