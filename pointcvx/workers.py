@@ -110,3 +110,17 @@ def even_slices(n: int, chunks: int) -> list[slice]:
     chunks = max(int(chunks), 1)
     cuts = [n * i // chunks for i in range(chunks + 1)]
     return [slice(lo, hi) for lo, hi in zip(cuts[:-1], cuts[1:], strict=True) if hi > lo]
+
+
+#: Queries below which a kd-tree query stays on one thread (its threads cost more than they save).
+KD_MIN_QUERIES = 4096
+
+
+def kd_workers(n_queries: int) -> int:
+    """``workers`` for a ``cKDTree.query`` of ``n_queries`` points: :func:`threads` for a large
+    query made outside :func:`pmap`'s threads, else 1 (inside a map the other threads are
+    busy). Each point's neighbours are found on their own, so the answer is the same with any
+    number of workers."""
+    if n_queries < KD_MIN_QUERIES or getattr(_local, "inside", False):
+        return 1
+    return threads()

@@ -504,3 +504,60 @@ def test_truncated_dot_splat_raises(tmp_path):
         pointcvx.load(path)
     with pytest.raises(InputError, match="truncated .splat"):
         S.read_dot_splat(path)
+
+
+def _signs_node_by_node(n, edges, relative, weights):
+    """propagate_signs's signs as it used to walk them: each piece's BFS tree of the deduplicated
+    graph, sign[child] = sign[parent] * r in BFS order."""
+    from scipy import sparse
+    from scipy.sparse import csgraph
+
+    lo, hi = np.minimum(edges[:, 0], edges[:, 1]), np.maximum(edges[:, 0], edges[:, 1])
+    rel = np.where(relative < 0, -1.0, 1.0)
+    w = np.ones(len(edges)) if weights is None else weights + 1e-9
+    keep = lo != hi
+    lo, hi, w, rel = lo[keep], hi[keep], w[keep], rel[keep]
+    order = np.lexsort((w, hi, lo))
+    lo, hi, w, rel = lo[order], hi[order], w[order], rel[order]
+    first = np.ones(len(lo), bool)
+    first[1:] = (lo[1:] != lo[:-1]) | (hi[1:] != hi[:-1])
+    lo, hi, w, rel = lo[first], hi[first], w[first], rel[first]
+    graph = sparse.coo_matrix((w, (lo, hi)), shape=(n, n)).tocsr()
+    tree = csgraph.minimum_spanning_tree(graph) if weights is not None else graph
+    tree = (tree + tree.T).tocsr()
+    relm = sparse.coo_matrix((rel, (lo, hi)), shape=(n, n)).tocsr()
+    relm = relm + relm.T
+    _, labels = csgraph.connected_components(tree, directed=False)
+    sign = np.ones(n)
+    for root in np.unique(labels, return_index=True)[1]:
+        order, pred = csgraph.breadth_first_order(tree, int(root), directed=False)
+        for child in order[1:]:
+            r = np.sign(relm[child, pred[child]]) or 1.0
+            sign[child] = sign[pred[child]] * r
+    return sign, labels
+
+
+@pytest.mark.parametrize("weighted", [True, False])
+def test_sign_propagation_equals_the_walk_node_by_node(weighted):
+    """propagate_signs gathers each node's sign along its tree path by pointer jumping and sorts
+    the edges by one pair key: the same signs and pieces as the node-by-node walk, on a graph of
+    several pieces (isolated nodes, repeated and self edges, tied weights included)."""
+    from pointcvx.io.orient import propagate_signs
+
+    rng = np.random.default_rng(5)
+    n = 3000
+    piece = rng.integers(0, 6, n)  # six pieces; edges only inside a piece
+    piece[:5] = 6 + np.arange(5)  # five isolated nodes
+    edges = []
+    for p in range(6):
+        nodes = np.flatnonzero(piece == p)
+        edges.append(np.stack([np.repeat(nodes, 6), rng.choice(nodes, 6 * len(nodes))], axis=1))
+    edges = np.concatenate(edges)
+    edges = np.concatenate([edges, edges[:200, ::-1], np.stack([np.arange(5, 20)] * 2, axis=1)])
+    relative = np.sign(rng.normal(size=len(edges)))
+    weights = np.round(rng.random(len(edges)), 2) if weighted else None  # many ties
+    sign, labels = propagate_signs(n, edges, relative, weights=weights)
+    ref_sign, ref_labels = _signs_node_by_node(n, edges, relative, weights)
+    np.testing.assert_array_equal(labels, ref_labels)
+    np.testing.assert_array_equal(sign, ref_sign)
+    assert len(np.unique(labels)) >= 11 and (sign < 0).any() and (sign > 0).any()

@@ -170,3 +170,13 @@ def test_one_shot_commands_exit_without_the_interpreters_teardown(tmp_path):
     assert res.stderr.count("\n") == 1 and "error" in res.stderr
     res = console()  # no command: usage, exit status 2, the usual exit
     assert res.returncode == 2 and "TEARDOWN" in res.stdout
+
+
+def test_a_profiled_one_shot_command_still_exits_through_the_profiler(tmp_path):
+    """Under ``python -m cProfile`` (or a tracer, or coverage) decompose and info exit the usual
+    way, so the tool writes its results at exit."""
+    stats = tmp_path / "info.prof"
+    res = subprocess.run([sys.executable, "-m", "cProfile", "-o", str(stats), "-m", "pointcvx", "info",
+                          str(MUG)], capture_output=True, text=True, timeout=300, cwd=ROOT)
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert stats.stat().st_size > 1000

@@ -119,3 +119,21 @@ def test_batch_and_bench_workers_thread_share_sets_the_worker_count():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env,
                          check=True, timeout=120).stdout.split()
     assert out == ["2", "1"], out
+
+
+def test_kd_queries_use_the_threads_outside_maps_only(two_threads):
+    """A large kd-tree query made by the main thread spreads over the process's threads; inside
+    a map (whose other threads are busy) and for a small query it stays on one; the neighbours
+    are the same either way."""
+    from scipy.spatial import cKDTree
+
+    big = workers.KD_MIN_QUERIES
+    assert workers.kd_workers(big) == 2 and workers.kd_workers(big - 1) == 1
+    assert workers.pmap(lambda n: workers.kd_workers(n), [big, big]) == [1, 1]
+    pts = np.random.default_rng(0).random((big, 3))
+    tree = cKDTree(pts)
+    one, many = tree.query(pts, k=8, workers=1), tree.query(pts, k=8, workers=workers.kd_workers(big))
+    np.testing.assert_array_equal(one[0], many[0])
+    np.testing.assert_array_equal(one[1], many[1])
+    workers.set_threads(1)
+    assert workers.kd_workers(10 * big) == 1

@@ -57,10 +57,11 @@ def console() -> None:
     """The ``pointcvx`` script and ``python -m pointcvx``: :func:`main` on ``sys.argv``, its
     status as the exit status. After a command of :data:`FAST_EXIT_COMMANDS` the output
     streams are flushed and the process exits at once (``os._exit``); every file such a command
-    writes is complete and closed before it returns (:mod:`pointcvx.io.outputs`)."""
+    writes is complete and closed before it returns (:mod:`pointcvx.io.outputs`). Not under a
+    profiler, tracer or coverage tool (:func:`_observed`): they write their results at exit."""
     code = main()
     command = sys.argv[1] if len(sys.argv) > 1 else None
-    if command in FAST_EXIT_COMMANDS:
+    if command in FAST_EXIT_COMMANDS and not _observed():
         try:
             sys.stdout.flush()
             sys.stderr.flush()
@@ -69,6 +70,15 @@ def console() -> None:
         logging.shutdown()
         os._exit(code)
     sys.exit(code)
+
+
+def _observed() -> bool:
+    """Whether a profiler, tracer or monitoring tool (``python -m cProfile``, ``trace``,
+    coverage) watches this process: they write their results at the interpreter's exit."""
+    if sys.getprofile() is not None or sys.gettrace() is not None:
+        return True
+    monitoring = getattr(sys, "monitoring", None)  # Python 3.12+: coverage's sys.monitoring core
+    return monitoring is not None and any(monitoring.get_tool(i) is not None for i in range(6))
 
 
 def main(argv: list[str] | None = None) -> int:

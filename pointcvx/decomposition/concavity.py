@@ -14,6 +14,7 @@ import numpy as np
 
 from ..cloud import check_points
 from ..errors import InputError
+from ..workers import kd_workers
 from .hull import Polytope, convex_hull, max_inside_depth, sample_hull_interior, sample_hull_surface
 
 K_CONCAVITY = 0.3
@@ -199,7 +200,8 @@ def sample_spacing(points: np.ndarray, tree=None) -> float:
 
     if len(points) < 2:
         return 0.0
-    return float(np.median((cKDTree(points) if tree is None else tree).query(points, k=2)[0][:, 1]))
+    tree = cKDTree(points) if tree is None else tree
+    return float(np.median(tree.query(points, k=2, workers=kd_workers(len(points)))[0][:, 1]))
 
 
 def part_concavity(

@@ -28,7 +28,7 @@ from scipy.spatial import cKDTree
 
 from ..errors import InputError
 from ..options import SPLIT_METHODS
-from ..workers import pmap, threads
+from ..workers import kd_workers, pmap, threads
 from .concavity import GAP_SPACINGS, HOLE_SURFACE_SPACINGS, part_concavity, sample_spacing
 from .hull import convex_hull, hull_contains, sample_hull_interior
 from .kmeans import nearest_centre, two_means
@@ -98,7 +98,8 @@ def neighbour_graph(points: np.ndarray, k: int = 10, radius_factor: float = 3.0,
     the typical spacing (so separate components stay separate). ``tree``: a kd-tree of
     ``points`` if already built."""
     k = int(min(k, len(points) - 1))
-    dist, idx = (cKDTree(points) if tree is None else tree).query(points, k=k + 1)
+    dist, idx = (cKDTree(points) if tree is None else tree).query(points, k=k + 1,
+                                                                  workers=kd_workers(len(points)))
     dist, idx = dist[:, 1:], idx[:, 1:]
     cap = radius_factor * np.median(dist[:, -1])
     keep = dist <= cap

@@ -11,6 +11,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
+from ..workers import kd_workers
+
 #: Neighbours whose mean gives a point's band middle.
 BAND_NEIGHBORS = 16
 
@@ -28,7 +30,7 @@ def flatten_band(points: np.ndarray, normals: np.ndarray, k: int = BAND_NEIGHBOR
     if k < 3:
         return pts.copy()
     tree = cKDTree(pts)
-    dist, idx = tree.query(pts, k=k)
+    dist, idx = tree.query(pts, k=k, workers=kd_workers(len(pts)))
     centre = pts[idx].mean(axis=1)
     offset = np.einsum("ij,ij->i", pts - centre, nrm)
     if limit is None:

@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..workers import kd_workers
+
 #: Neighbours per point in the graph.
 NEIGHBORS = 8
 #: An edge joins two points closer than this many times the larger of their local spacings.
@@ -30,7 +32,7 @@ def components(points: np.ndarray, *, neighbors: int = NEIGHBORS, gap: float = G
     if n == 0:
         return np.zeros(0, dtype=np.int64)
     k = min(neighbors + 1, n)
-    dist, idx = cKDTree(pts).query(pts, k=k)
+    dist, idx = cKDTree(pts).query(pts, k=k, workers=kd_workers(n))
     dist, idx = dist.reshape(n, k), idx.reshape(n, k)
     spacing = dist[:, min(SPACING_RANK, k - 1)]
     limit = gap * np.maximum(spacing[:, None], spacing[idx])

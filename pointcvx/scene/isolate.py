@@ -48,6 +48,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..workers import kd_workers
 from .components import components
 from .planes import Plane, find_planes
 
@@ -132,7 +133,7 @@ def spacing(points: np.ndarray, sample: int = 20000) -> float:
     if len(pts) < 2:
         return 0.0
     sub = pts[np.random.default_rng(0).permutation(len(pts))[:sample]] if len(pts) > sample else pts
-    return float(np.median(cKDTree(sub).query(sub, k=2)[0][:, 1]))
+    return float(np.median(cKDTree(sub).query(sub, k=2, workers=kd_workers(len(sub)))[0][:, 1]))
 
 
 def plane_basis(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

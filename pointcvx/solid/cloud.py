@@ -34,6 +34,7 @@ import numpy as np
 
 from ..cloud import check_points
 from ..errors import InputError
+from ..workers import kd_workers
 from .grid import (
     Grid,
     ball_dilate,
@@ -82,7 +83,7 @@ def _hoppe(tree, points, normals, query, neighbors, sigma, chunk: int = 1 << 17)
     k = min(neighbors, len(points))
     for s in range(0, len(query), chunk):
         q = query[s : s + chunk]
-        dist, idx = tree.query(q, k=k)
+        dist, idx = tree.query(q, k=k, workers=kd_workers(len(q)))
         if k == 1:
             dist, idx = dist[:, None], idx[:, None]
         # Far from the points, widen the kernel with the distance so the sign stays smooth.
@@ -137,7 +138,7 @@ def dipole_cells(points: np.ndarray, normals: np.ndarray, cell: float, k: int = 
     if kk < 1:
         area = np.ones(len(pts))
     else:
-        area = np.pi * cKDTree(pts).query(pts, k=kk + 1)[0][:, -1] ** 2 / kk
+        area = np.pi * cKDTree(pts).query(pts, k=kk + 1, workers=kd_workers(len(pts)))[0][:, -1] ** 2 / kk
     key = np.floor((pts - pts.min(axis=0)) / cell).astype(np.int64)
     inverse = np.unique(key, axis=0, return_inverse=True)[1].reshape(-1)
     n_cells = int(inverse.max()) + 1
@@ -227,7 +228,7 @@ def surface_from_cloud(
     tree = cKDTree(pts)
     probe = pts[:: max(1, len(pts) // 20000)]
     kk = min(7, len(pts))
-    nn = tree.query(probe, k=kk)[0][:, -1]
+    nn = tree.query(probe, k=kk, workers=kd_workers(len(probe)))[0][:, -1]
     cover = float(np.median(nn))  # about the radius of the gaps between points
     lo, hi = pts.min(axis=0), pts.max(axis=0)
 
