@@ -512,16 +512,16 @@ def _signs_node_by_node(n, edges, relative, weights):
     from scipy import sparse
     from scipy.sparse import csgraph
 
-    lo, hi = np.minimum(edges[:, 0], edges[:, 1]), np.maximum(edges[:, 0], edges[:, 1])
-    rel = np.where(relative < 0, -1.0, 1.0)
-    w = np.ones(len(edges)) if weights is None else weights + 1e-9
-    keep = lo != hi
-    lo, hi, w, rel = lo[keep], hi[keep], w[keep], rel[keep]
-    order = np.lexsort((w, hi, lo))
-    lo, hi, w, rel = lo[order], hi[order], w[order], rel[order]
-    first = np.ones(len(lo), bool)
-    first[1:] = (lo[1:] != lo[:-1]) | (hi[1:] != hi[:-1])
-    lo, hi, w, rel = lo[first], hi[first], w[first], rel[first]
+    best = {}  # each node pair's most trusted relation: least weight, then first given
+    for e, (a, b) in enumerate(edges.tolist()):
+        if a != b:
+            pair = (min(a, b), max(a, b))
+            key = (1.0 if weights is None else weights[e] + 1e-9, e)
+            best[pair] = min(best.get(pair, key), key)
+    pairs = sorted(best)
+    lo, hi = np.array([p[0] for p in pairs]), np.array([p[1] for p in pairs])
+    w = np.array([best[p][0] for p in pairs])
+    rel = np.where(relative[[best[p][1] for p in pairs]] < 0, -1.0, 1.0)
     graph = sparse.coo_matrix((w, (lo, hi)), shape=(n, n)).tocsr()
     tree = csgraph.minimum_spanning_tree(graph) if weights is not None else graph
     tree = (tree + tree.T).tocsr()
