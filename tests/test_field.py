@@ -264,33 +264,20 @@ def test_the_negatives_gradient_spread_equals_scipys_sparse_product_bit_for_bit(
 
 def _reference_fit(triplets, steps, lr, seed, batch=128, negatives_per_step=64, tau=0.3,
                    betas=(0.9, 0.999), eps=1e-8):
-    """fit_field's loop with Adam written per weight and bias array, as it was before the
-    parameters became views of one vector."""
-    from pointcvx.features.field import STEP_CHUNKS, _unique_rows
-    from pointcvx.workers import even_slices
+    """fit_field with Adam written per weight and bias array, as it was before the parameters
+    became views of one vector (the same step's gradients)."""
+    from pointcvx.features.field import step_gradients
 
     rng = np.random.default_rng(seed)
     field = FourierField.initial(rng)
-    pool = np.asarray(triplets.pool, np.float32)
-    positive = np.asarray(triplets.positive, np.float32)
-    anchor, negative = triplets.anchor, triplets.negative
+    enc_pool = field._encode(np.asarray(triplets.pool, np.float32))
+    enc_pos = field._encode(np.asarray(triplets.positive, np.float32))
     moments = [[(np.zeros_like(p), np.zeros_like(p)) for p in layer] for layer in field.params]
-    enc_pool, enc_pos = field._encode(pool), field._encode(positive)
     b1, b2 = betas
     for step in range(steps):
         rate = lr * 0.5 * (1.0 + math.cos(math.pi * step / steps))
-        pick = rng.integers(0, len(anchor), min(batch, len(anchor)))
-        cols = rng.integers(0, negative.shape[1], (len(pick), negatives_per_step))
-        neg = np.take_along_axis(negative[pick], cols, 1)
-        used, inv = _unique_rows(np.concatenate([anchor[pick], neg.ravel()]), len(pool))
-        rows = np.concatenate([enc_pool[used], enc_pos[pick]])
-        chunks = even_slices(len(rows), STEP_CHUNKS)
-        ahead = [field._forward_encoded(rows[c]) for c in chunks]
-        feats = np.concatenate([f for f, _, _ in ahead])
-        _, g_pool, g_p = pool_info_nce_grad(feats[: len(used)], inv[: len(pick)], feats[len(used):],
-                                            inv[len(pick):].reshape(neg.shape), tau, STEP_CHUNKS)
-        grad = np.concatenate([g_pool, g_p])
-        back = [field._backward(grad[c], *a) for c, a in zip(chunks, ahead, strict=True)]
+        _, back = step_gradients(field, rng, enc_pool, enc_pos, triplets.anchor, triplets.negative,
+                                 batch, negatives_per_step, tau)
         grads = [tuple(sum(g[i][j] for g in back) for j in range(2)) for i in range(len(back[0]))]
         t = step + 1
         for layer, layer_grads, layer_moments in zip(field.params, grads, moments, strict=True):

@@ -507,10 +507,12 @@ def test_truncated_dot_splat_raises(tmp_path):
 
 
 def _signs_node_by_node(n, edges, relative, weights):
-    """propagate_signs's signs as it used to walk them: each piece's BFS tree of the deduplicated
-    graph, sign[child] = sign[parent] * r in BFS order."""
-    from scipy import sparse
+    """propagate_signs's signs as it used to find them: its node pairs deduplicated one by one,
+    then each piece's BFS tree of the same graph walked node by node, sign[child] = sign[parent]
+    * r in BFS order."""
     from scipy.sparse import csgraph
+
+    from pointcvx.io.orient import sign_tree
 
     best = {}  # each node pair's most trusted relation: least weight, then first given
     for e, (a, b) in enumerate(edges.tolist()):
@@ -522,12 +524,7 @@ def _signs_node_by_node(n, edges, relative, weights):
     lo, hi = np.array([p[0] for p in pairs]), np.array([p[1] for p in pairs])
     w = np.array([best[p][0] for p in pairs])
     rel = np.where(relative[[best[p][1] for p in pairs]] < 0, -1.0, 1.0)
-    graph = sparse.coo_matrix((w, (lo, hi)), shape=(n, n)).tocsr()
-    tree = csgraph.minimum_spanning_tree(graph) if weights is not None else graph
-    tree = (tree + tree.T).tocsr()
-    relm = sparse.coo_matrix((rel, (lo, hi)), shape=(n, n)).tocsr()
-    relm = relm + relm.T
-    _, labels = csgraph.connected_components(tree, directed=False)
+    tree, relm, labels = sign_tree(n, lo, hi, w, rel, spanning=weights is not None)
     sign = np.ones(n)
     for root in np.unique(labels, return_index=True)[1]:
         order, pred = csgraph.breadth_first_order(tree, int(root), directed=False)

@@ -293,6 +293,31 @@ def _flatten(params: list) -> tuple[np.ndarray, list]:
     return flat, views
 
 
+def step_gradients(field: FourierField, rng: np.random.Generator, enc_pool: np.ndarray,
+                   enc_pos: np.ndarray, anchor: np.ndarray, negative: np.ndarray, batch: int,
+                   negatives_per_step: int, tau: float) -> tuple[float, list]:
+    """One step of :func:`fit_field` before its update: draws ``batch`` anchors and
+    ``negatives_per_step`` of each one's (a, k) ``negative`` columns from ``rng``, evaluates the
+    field once on the (u, e) encoded pool rows involved and the (a, e) encoded positives, and
+    returns (loss, the layers' gradients of each of the :data:`STEP_CHUNKS` row chunks, as
+    :meth:`FourierField._backward` gives them), the chunks on the worker threads."""
+    pick = rng.integers(0, len(anchor), min(batch, len(anchor)))
+    cols = rng.integers(0, negative.shape[1], (len(pick), negatives_per_step))
+    neg = np.take_along_axis(negative[pick], cols, 1)
+    used, inv = _unique_rows(np.concatenate([anchor[pick], neg.ravel()]), len(enc_pool))
+    a_idx, n_idx = inv[: len(pick)], inv[len(pick) :].reshape(neg.shape)
+    rows = np.concatenate([enc_pool[used], enc_pos[pick]])
+    chunks = even_slices(len(rows), STEP_CHUNKS)
+    ahead = pmap(field._forward_encoded, [rows[c] for c in chunks])
+    feats = np.concatenate([f for f, _, _ in ahead])
+    f_pool, f_pos = feats[: len(used)], feats[len(used) :]
+    loss, g_pool, g_p = pool_info_nce_grad(f_pool, a_idx, f_pos, n_idx, tau, STEP_CHUNKS)
+    grad = np.concatenate([g_pool, g_p])
+    back = pmap(lambda job: field._backward(*job),
+                [(grad[c], *a) for c, a in zip(chunks, ahead, strict=True)])
+    return loss, back
+
+
 def fit_field(triplets: Triplets, *, dim: int = 32, steps: int = FAST_STEPS, batch: int = 128,
               negatives_per_step: int = 64, lr: float = FAST_LR, tau: float = 0.3, seed: int = 0,
               betas: tuple = (0.9, 0.999), eps: float = 1e-8,
@@ -324,21 +349,9 @@ def fit_field(triplets: Triplets, *, dim: int = 32, steps: int = FAST_STEPS, bat
         enc_pool, enc_pos = field._encode(pool), field._encode(positive)
         for step in range(steps):
             rate = lr * 0.5 * (1.0 + math.cos(math.pi * step / steps))
-            pick = rng.integers(0, len(anchor), min(batch, len(anchor)))
-            cols = rng.integers(0, negative.shape[1], (len(pick), negatives_per_step))
-            neg = np.take_along_axis(negative[pick], cols, 1)
-            used, inv = _unique_rows(np.concatenate([anchor[pick], neg.ravel()]), len(pool))
-            a_idx, n_idx = inv[: len(pick)], inv[len(pick) :].reshape(neg.shape)
-            rows = np.concatenate([enc_pool[used], enc_pos[pick]])
-            chunks = even_slices(len(rows), STEP_CHUNKS)
-            ahead = pmap(field._forward_encoded, [rows[c] for c in chunks])
-            feats = np.concatenate([f for f, _, _ in ahead])
-            f_pool, f_pos = feats[: len(used)], feats[len(used) :]
-            loss, g_pool, g_p = pool_info_nce_grad(f_pool, a_idx, f_pos, n_idx, tau, STEP_CHUNKS)
-            grad = np.concatenate([g_pool, g_p])
+            loss, back = step_gradients(field, rng, enc_pool, enc_pos, anchor, negative, batch,
+                                        negatives_per_step, tau)
             t = step + 1
-            back = pmap(lambda job: field._backward(*job),
-                        [(grad[c], *a) for c, a in zip(chunks, ahead, strict=True)])
             g = 0  # the chunks' gradients summed in chunk order
             for chunk_grads in back:
                 g = g + np.concatenate([part.ravel() for layer in chunk_grads for part in layer])

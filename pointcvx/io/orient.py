@@ -70,12 +70,7 @@ def propagate_signs(n: int, edges: np.ndarray, relative: np.ndarray,
     first = np.ones(len(lo), dtype=bool)
     first[1:] = (lo[1:] != lo[:-1]) | (hi[1:] != hi[:-1])
     lo, hi, w, rel = lo[first], hi[first], w[first], rel[first]
-    graph = sparse.coo_matrix((w, (lo, hi)), shape=(n, n)).tocsr()
-    tree = csgraph.minimum_spanning_tree(graph) if weights is not None else graph
-    tree = (tree + tree.T).tocsr()
-    relm = sparse.coo_matrix((rel, (lo, hi)), shape=(n, n)).tocsr()
-    relm = relm + relm.T
-    _, labels = csgraph.connected_components(tree, directed=False)
+    tree, relm, labels = sign_tree(n, lo, hi, w, rel, spanning=weights is not None)
     # Each node's parent in its piece's BFS tree and the relative sign r to it:
     # sign[child] = sign[parent] * r, i.e. a node's sign is the product of the r along its path
     # to its root. The products are gathered by pointer jumping (each round doubles the length of
@@ -94,8 +89,22 @@ def propagate_signs(n: int, edges: np.ndarray, relative: np.ndarray,
         if np.array_equal(far, up):  # every node points at its root, whose step is 1
             break
         step, up = step * step[up], far
-    sign = step
-    return sign, labels
+    return step, labels
+
+
+def sign_tree(n: int, lo: np.ndarray, hi: np.ndarray, w: np.ndarray, rel: np.ndarray, *,
+              spanning: bool):
+    """The graph :func:`propagate_signs` walks, from its (m,) node pairs ``lo`` < ``hi`` (each
+    pair once) with weights ``w`` and relative signs ``rel``: (the symmetric (n, n) tree, its
+    minimum spanning tree where ``spanning``, else the whole graph; the symmetric (n, n)
+    relative signs; (n,) int connected piece of each node)."""
+    graph = sparse.coo_matrix((w, (lo, hi)), shape=(n, n)).tocsr()
+    tree = csgraph.minimum_spanning_tree(graph) if spanning else graph
+    tree = (tree + tree.T).tocsr()
+    relm = sparse.coo_matrix((rel, (lo, hi)), shape=(n, n)).tocsr()
+    relm = relm + relm.T
+    _, labels = csgraph.connected_components(tree, directed=False)
+    return tree, relm, labels
 
 
 def _propagate(points: np.ndarray, normals: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
