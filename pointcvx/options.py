@@ -26,8 +26,9 @@ SPLIT_METHODS = ("auto", "kmeans", "ward")
 ENGINE_TARGETS = ("mujoco", "bullet", "physx", "physx-gpu", "newton", "unity")
 #: How splats and scans are freed from their surroundings (:func:`pointcvx.scene.isolate`).
 ISOLATE_MODES = ("auto", "all", "largest", "none")
-#: Whether the bases of objects on a removed support plane are closed (pointcvx.scene.base).
-BASE_MODES = ("on", "off")
+#: How what stood on a removed support plane reaches down to it: its hulls
+#: (pointcvx.decomposition.ground), its points (pointcvx.scene.base), or neither.
+BASE_MODES = ("hulls", "on", "off")
 #: Whether a capture is decomposed as a scene of objects (:mod:`pointcvx.scene.objects`).
 SCENE_MODES = ("auto", "on", "off")
 #: Where points are moved to the middle of their surface band first (pointcvx.scene.band).
@@ -274,10 +275,11 @@ class LoadOptions(Options):
                                 "(min corner, then max corner)", tuple, "--crop",
                                 metavar="X0,Y0,Z0,X1,Y1,Z1", optional=True, group=_ISOLATE)
     close_bases: str = option(
-        "off", "on closes the bottom of what stood on the removed support plane (a cap on the "
-        "plane and a skirt down to it), so its hulls reach the floor instead of ending a band's "
-        "height above it; off by default (more hulls on some depth frames, see docs/captures.md)",
-        str, "--close-bases", choices=BASE_MODES, group=_ISOLATE)
+        "hulls", "what stood on the removed support plane reaches down to it, instead of ending "
+        "a band's height above it: hulls (default) extends the hulls that rest on it down to the "
+        "plane (no hull added); on closes the points' bottom before the split (a cap on the "
+        "plane and a skirt down to it: more hulls on some depth frames, see docs/captures.md); "
+        "off leaves both open", str, "--close-bases", choices=BASE_MODES, group=_ISOLATE)
 
 
 @dataclass(frozen=True)

@@ -334,6 +334,7 @@ def cut_decomposition(decomposer, cloud: OrientedCloud, params: dict, timings: d
                       progress=None) -> Decomposition:
     """Cut ``decomposer``'s tree (a :class:`~pointcvx.decomposition.tree.Decomposer`) at
     ``params`` (threshold, max_hulls, merge) into a result; ``progress(stage, done, total)``."""
+    from .decomposition.ground import grounded_vertices, support_band
     from .decomposition.hull import convex_hull
     from .decomposition.seams import seam_points
 
@@ -384,10 +385,18 @@ def cut_decomposition(decomposer, cloud: OrientedCloud, params: dict, timings: d
     # Each hull also reaches halfway across the cut to its neighbours, so hulls meet there
     # instead of leaving a gap (decomposition.seams).
     spanned = seam_points(cloud.points, cloud.normals, labels, decomposer.spacing)
+    # What stood on a removed support plane reaches down to it (decomposition.ground).
+    support = support_band(cloud.info) if params.get("close_bases", "hulls") == "hulls" else None
+    grounded = 0
     for idx, span, conc in zip(parts, spanned, concavity, strict=True):
         h = convex_hull(span)
-        hulls.append(ConvexHull(back.inverse(h.vertices), h.faces.astype(np.int64), float(conc),
-                                int(len(idx))))
+        vertices, faces = back.inverse(h.vertices), h.faces
+        down = None if support is None else grounded_vertices(vertices, *support)
+        if down is not None:
+            h = convex_hull(down)
+            vertices, faces = h.vertices, h.faces
+            grounded += 1
+        hulls.append(ConvexHull(vertices, faces.astype(np.int64), float(conc), int(len(idx))))
     timings["hulls"] = time.perf_counter() - t
     noise = int(np.count_nonzero(labels < 0)) - air_points
     # A mesh's surface points of parts whose hulls held no material (Decomposer.drop_air).
@@ -395,6 +404,8 @@ def cut_decomposition(decomposer, cloud: OrientedCloud, params: dict, timings: d
         cloud = cloud.replace(info={**cloud.info, "air_points": air_points})
     if noise or "noise_points" in cloud.info:  # a recut may drop none where an earlier cut did
         cloud = cloud.replace(info={**cloud.info, "noise_points": noise})
+    if grounded or "grounded_hulls" in cloud.info:
+        cloud = cloud.replace(info={**cloud.info, "grounded_hulls": grounded})
     if start is not None:
         timings["total"] = time.perf_counter() - start
     else:
@@ -459,9 +470,10 @@ def merge_parts(parts: list[Decomposition], pieces: list[np.ndarray], cloud: Ori
         for key, value in part.timings.items():
             if key != "total":
                 timings[key] = timings.get(key, 0.0) + value
-    noise = sum(int(part.cloud.info.get("noise_points", 0)) for part in parts)
-    if noise:
-        cloud = cloud.replace(info={**cloud.info, "noise_points": noise})
+    for key in ("noise_points", "grounded_hulls"):
+        count = sum(int(part.cloud.info.get(key, 0)) for part in parts)
+        if count or key in cloud.info:
+            cloud = cloud.replace(info={**cloud.info, key: count})
     timings["total"] = (time.perf_counter() - start) if start is not None else sum(timings.values())
     params = ({k: v for k, v in parts[0].params.items() if k not in OUTCOMES}
               | {"scene": True, "objects": len(parts)}) if parts else {"scene": True}

@@ -224,7 +224,7 @@ def test_what_stands_on_the_removed_floor_has_its_base_closed_down_to_it_when_as
     result = pointcvx.decompose(box, features="fast", seed=0, close_bases="on")
     low = min(h.vertices[:, 2].min() for h in result.hulls)
     assert len(result.hulls) == 1 and abs(low) < 0.005, low
-    open_base = pointcvx.decompose(box, features="fast", seed=0)  # the default: left open
+    open_base = pointcvx.decompose(box, features="fast", seed=0, close_bases="off")
     assert min(h.vertices[:, 2].min() for h in open_base.hulls) > 0.01
     table = _on_floor(TABLE, rng)
     found = isolate(table.points, "all")
@@ -241,6 +241,65 @@ def test_what_stands_on_the_removed_floor_has_its_base_closed_down_to_it_when_as
     assert min(h.vertices[:, 2].min() for h in tabled.hulls) < 0.005
     held = _on_floor([([-0.4, -0.3, 0.3], [0.4, 0.3, 0.9], 6000)], rng, bottoms=True)
     assert "base" not in as_cloud(held, normalize=False, n_points=None, close_bases="on").info["isolation"]
+
+
+def test_grounded_vertices_move_a_resting_hulls_base_down_to_the_plane():
+    """A hull whose lowest vertex is within RESTING_BANDS bands of the plane gets its base (its
+    vertices within a band of the lowest) repeated on the plane; one held higher, one already
+    through the plane, or a plane without a band get nothing."""
+    from pointcvx.decomposition.ground import RESTING_BANDS, grounded_vertices
+
+    cube = np.array([[x, y, z] for x in (0.0, 1.0) for y in (0.0, 1.0) for z in (0.04, 1.0)])
+    up = np.array([0.0, 0.0, 2.0])  # not unit: the plane z = 0 all the same
+    down = grounded_vertices(cube, up, 0.0, 0.03)
+    assert down.shape == (12, 3)
+    np.testing.assert_allclose(down[:8], cube)
+    np.testing.assert_allclose(down[8:], cube[cube[:, 2] < 0.05] * [1, 1, 0])
+    tilted = cube.copy()
+    tilted[cube[:, 0] == 1.0, 2] += 0.2  # only the two lowest corners are the base
+    assert len(grounded_vertices(tilted, up, 0.0, 0.03)) == 10
+    held = cube + [0, 0, RESTING_BANDS * 0.03]  # 0.04 + 2.5 bands: above the reach
+    assert grounded_vertices(held, up, 0.0, 0.03) is None
+    assert grounded_vertices(cube - [0, 0, 0.05], up, 0.0, 0.03) is None
+    assert grounded_vertices(cube, up, 0.0, 0.0) is None
+    # an oblique plane: the moved base lies on it
+    n = np.array([0.0, 0.6, 0.8])
+    out = grounded_vertices(cube + 0.05 * n, n, float((cube + 0.05 * n).min(axis=0) @ n) - 0.06, 0.05)
+    heights = out @ n - (float((cube + 0.05 * n).min(axis=0) @ n) - 0.06)
+    assert np.isclose(heights.min(), 0.0) and (heights[8:] < 1e-12).all()
+
+
+def test_what_rests_on_the_removed_floor_reaches_it_by_default_at_no_hull(rng):
+    """By default (``close_bases="hulls"``) the hulls that end in reach of the removed floor are
+    extended down to it, after the split: the same hulls and pieces as with the bases left open
+    (``"off"``), each reaching z = 0, the ones held above the floor untouched; the count is
+    reported and a recut grounds again."""
+    table = _on_floor(TABLE, rng)
+    opts = dict(features="fast", seed=0, n_points=8000)
+    grounded = pointcvx.decompose(table, **opts)
+    open_base = pointcvx.decompose(table, close_bases="off", **opts)
+    assert len(grounded.hulls) == len(open_base.hulls) and (grounded.labels == open_base.labels).all()
+    lows = np.array([h.vertices[:, 2].min() for h in grounded.hulls])
+    open_lows = np.array([h.vertices[:, 2].min() for h in open_base.hulls])
+    resting = open_lows < 0.25
+    assert resting.sum() >= 4 and open_lows[resting].min() > 0.005  # the four legs, open
+    np.testing.assert_allclose(lows[resting], 0.0, atol=1e-3)  # the floor
+    plane = grounded.support  # exactly on the plane isolation fitted to it
+    on_plane = [float((h.vertices @ plane["normal"]).min() - plane["offset"]) for h in grounded.hulls]
+    np.testing.assert_allclose(np.array(on_plane)[resting], 0.0, atol=1e-6)
+    np.testing.assert_allclose(lows[~resting], open_lows[~resting])
+    assert grounded.cloud.info["grounded_hulls"] == resting.sum()
+    assert "grounded_hulls" not in open_base.cloud.info
+    for g, o in zip(grounded.hulls, open_base.hulls, strict=True):  # each contains the open one
+        assert g.volume >= o.volume - 1e-12 and g.concavity == o.concavity
+    legs = [h for h, r in zip(grounded.hulls, resting, strict=True) if r]
+    assert max(np.ptp(h.vertices[:, 0]) for h in legs) < 0.3  # nothing between the legs
+    again = grounded.recut(max_hulls=len(grounded.hulls))
+    assert min(h.vertices[:, 2].min() for h in again.hulls) < 1e-3
+    held = _on_floor([([-0.4, -0.3, 0.3], [0.4, 0.3, 0.9], 6000)], rng, bottoms=True)
+    high = pointcvx.decompose(held, **opts)
+    assert min(h.vertices[:, 2].min() for h in high.hulls) > 0.25
+    assert high.cloud.info.get("grounded_hulls", 0) == 0
 
 
 def test_a_scenes_hull_budget_is_shared_by_its_objects(rng):
@@ -275,9 +334,11 @@ def test_a_scene_is_one_body_per_object_on_a_static_plane_and_rests_in_mujoco(tw
     start = data.xpos[1:].copy()
     for _ in range(int(1.5 / model.opt.timestep)):
         mujoco.mj_step(model, data)
-    # the boxes settle on the floor (their bottoms were under the floor's band), never through it
+    # the boxes rest on the floor (their hulls reach down through the floor's band), and
+    # never sink through it
     drop = start[:, 2] - data.xpos[1:, 2]
-    assert (drop > -0.01).all() and (drop < 0.1).all(), drop
+    assert (drop > -0.01).all() and (drop < 0.01).all(), drop
+    assert result.cloud.info["grounded_hulls"] >= 2
     assert np.abs(data.xpos[1:, :2] - start[:, :2]).max() < 0.05
     assert len(meshes) == len(result.hulls)
 

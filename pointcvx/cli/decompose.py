@@ -89,6 +89,8 @@ def summary_line(summary: dict, limits) -> str:
         line += f"; {summary['noise_points']} noise points in no hull"
     if summary.get("air_points"):
         line += f"; {summary['air_points']} points of hulls holding no material left out"
+    if summary.get("grounded_hulls"):
+        line += f"; {summary['grounded_hulls']} hulls reach down to the support plane"
     if summary.get("resolved_threshold"):
         line += (f"; too sparse to resolve threshold {summary['threshold']:g}, so cut at "
                  + ", ".join(f"{t:.3g} ({name})" for name, t in summary["resolved_threshold"].items()))
@@ -171,6 +173,7 @@ def run(args: argparse.Namespace) -> int:
         summary["removed"] = result.cloud.info["isolation"]["removed"]
     summary["noise_points"] = int(result.cloud.info.get("noise_points", 0))
     summary["air_points"] = int(result.cloud.info.get("air_points", 0))
+    summary["grounded_hulls"] = int(result.cloud.info.get("grounded_hulls", 0))
     summary["threshold"] = result.params["threshold"]
     summary["resolved_threshold"] = result.resolved_thresholds
     summary["max_hulls"] = result.params["max_hulls"]

@@ -32,6 +32,7 @@ def report(result) -> dict[str, Any]:
               "points": int(len(result.labels)),
               "noise_points": int(result.cloud.info.get("noise_points", 0)),
               "air_points": int(result.cloud.info.get("air_points", 0)),
+              "grounded_hulls": int(result.cloud.info.get("grounded_hulls", 0)),
               "max_offset": float(offsets.max()) if len(offsets) else 0.0}
     extra = {}
     if result.objects:
