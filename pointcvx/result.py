@@ -386,7 +386,7 @@ def cut_decomposition(decomposer, cloud: OrientedCloud, params: dict, timings: d
     # instead of leaving a gap (decomposition.seams).
     spanned = seam_points(cloud.points, cloud.normals, labels, decomposer.spacing)
     # What stood on a removed support plane reaches down to it (decomposition.ground).
-    support = support_band(cloud.info) if params.get("close_bases", "hulls") == "hulls" else None
+    support = support_band(cloud.info) if params.get("close_bases") == "hulls" else None
     grounded = 0
     for idx, span, conc in zip(parts, spanned, concavity, strict=True):
         h = convex_hull(span)
