@@ -450,6 +450,8 @@ def merge_parts(parts: list[Decomposition], pieces: list[np.ndarray], cloud: Ori
     """One decomposition of a scene from its objects' decompositions: ``parts[k]`` decomposed the
     points ``pieces[k]`` ((m_k,) int indices into ``cloud``) in its own frame. Hulls keep the
     input's units; labels index the merged hull list (-1 for points of no object)."""
+    from .decomposition.ground import scene_rests
+
     timings = dict(timings)
     start = timings.pop("_start", None)
     hulls: list[ConvexHull] = []
@@ -470,6 +472,13 @@ def merge_parts(parts: list[Decomposition], pieces: list[np.ndarray], cloud: Ori
         for key, value in part.timings.items():
             if key != "total":
                 timings[key] = timings.get(key, 0.0) + value
+    # What each object rests on; one held by something out of view is a static body.
+    rests = scene_rests(cloud.info, cloud.normalization.inverse(cloud.points),
+                        [[hulls[h].vertices for h in obj["hulls"]] for obj in objects])
+    for obj, (on, stands) in zip(objects, rests or [], strict=False):
+        obj["rests_on"] = objects[on]["name"] if isinstance(on, int) else on
+        obj["stands"] = stands  # its centre of mass over where it touches what it rests on
+        obj["static"] = not stands
     for key in ("noise_points", "grounded_hulls"):
         count = sum(int(part.cloud.info.get(key, 0)) for part in parts)
         if count or key in cloud.info:

@@ -103,8 +103,9 @@ def test_the_kinect_frames_objects_reach_the_floor_and_rest_on_it_in_mujoco(tmp_
     """kinect_frame.pcd: three objects on a floor. Isolation removes the floor with its band,
     and the objects' bottoms with it; their hulls are extended down to the floor
     (decomposition.ground), so in the MJCF scene the largest (in hulls, standing on its own) rests
-    where it stood (with the bases left open it dropped 7 mm onto the floor; the thin board
-    leaning on it topples either way)."""
+    where it stood (with the bases left open it dropped 7 mm onto the floor). The thin board
+    leaning on it, whose centre of mass is not over its foot, is static (it toppled before):
+    nothing in the scene moves more than 1 cm in a second."""
     import mujoco
 
     result = pointcvx.decompose(DATA / "raw_scans" / "kinect_frame.pcd", seed=0)
@@ -119,10 +120,17 @@ def test_the_kinect_frames_objects_reach_the_floor_and_rest_on_it_in_mujoco(tmp_
     model = mujoco.MjModel.from_xml_path(str(xml))
     data = mujoco.MjData(model)
     mujoco.mj_forward(model, data)
-    start = data.xpos[1 + box].copy()
+    start = data.xpos.copy()
     for _ in range(100):
         mujoco.mj_step(model, data)
-    assert np.linalg.norm(data.xpos[1 + box] - start) < 0.002
+    assert np.linalg.norm(data.xpos[1 + box] - start[1 + box]) < 0.002
+    assert [o["rests_on"] for o in result.objects] == ["support"] * 3
+    leaning = [o["name"] for o in result.objects if not o["stands"]]
+    assert len(leaning) == 1 and leaning != [result.objects[box]["name"]]
+    assert model.body_jntnum[mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, leaning[0])] == 0
+    for _ in range(400):
+        mujoco.mj_step(model, data)
+    assert np.linalg.norm(data.xpos - start, axis=1).max() < 0.01
 
 
 def test_the_office_frames_wall_is_static_and_frees_its_objects(tmp_path):
@@ -148,9 +156,16 @@ def test_the_office_frames_wall_is_static_and_frees_its_objects(tmp_path):
     model = mujoco.MjModel.from_xml_path(str(xml))
     assert model.nbody - 1 == len(result.objects)  # the world, then one body per object
     data = mujoco.MjData(model)
-    for _ in range(100):
+    mujoco.mj_forward(model, data)
+    start = data.xpos.copy()
+    for _ in range(500):
         mujoco.mj_step(model, data)
     assert np.isfinite(data.qpos).all()
+    # What the frame shows held up by nothing in view (chairs whose legs the sensor missed,
+    # things on the walls) is static, like what would tip over: nothing falls in a second.
+    assert any(o["rests_on"] is None and o["static"] for o in result.objects)
+    assert all(o["static"] == (not o["stands"]) for o in result.objects)
+    assert np.linalg.norm(data.xpos - start, axis=1).max() < 0.01
     # URDF: the floor and the walls box collisions of the root link; USD: static colliders
     import xml.etree.ElementTree as ET
 

@@ -9,7 +9,7 @@ import trimesh
 import pointcvx
 from conftest import DATA
 from pointcvx.errors import InputError
-from pointcvx.io.mesh import clean_mesh, cloud_from_mesh, read_mesh, winding_signs
+from pointcvx.io.mesh import clean_mesh, cloud_from_mesh, plain_off, read_mesh, winding_signs
 from pointcvx.io.sniff import detect
 
 # Watertight, consistently wound dev meshes of every category: their true outward normals are
@@ -100,6 +100,41 @@ def test_sampling_is_seeded_and_area_weighted():
     half = np.array([2.0, 0.5, 0.5])
     on_face = np.isclose(np.abs(a.points), half, atol=1e-12).any(axis=1)
     assert on_face.all() and (np.abs(a.points) <= half + 1e-12).all()
+
+
+@pytest.mark.parametrize("rel", ["vhacd61/bunny.off", "vhacd61/chair.off", "dev/characters/knight.off"])
+def test_plain_off_files_are_read_as_trimesh_reads_them(rel):
+    path = DATA / rel
+    arrays = plain_off(path.read_bytes())
+    assert arrays is not None, "a plain OFF took trimesh's slow path"
+    ref = trimesh.load(path, file_type="off", force="mesh", process=False)
+    assert arrays[0].dtype == np.float64 and arrays[1].dtype == np.int64
+    assert np.array_equal(arrays[0], ref.vertices) and np.array_equal(arrays[1], ref.faces)
+    mesh = read_mesh(path, "off")
+    assert np.array_equal(mesh.vertices, ref.vertices) and np.array_equal(mesh.faces, ref.faces)
+
+
+@pytest.mark.parametrize("text", [
+    "OFF\n# a comment\n4 1 0\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n3 0 1 2\n",  # comments
+    "OFF\n4 1 0\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n4 0 1 2 3\n",  # a quad
+    "COFF\n3 1 0\n0 0 0 255 0 0 255\n1 0 0 255 0 0 255\n0 1 0 255 0 0 255\n3 0 1 2\n",  # colours
+    "OFF\n3 1 0\n0 0 0 9\n1 0 0\n0 1 0\n3 0 1 2\n",  # a vertex line with an extra value
+    "OFF\n3 2 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n",  # fewer faces than declared
+])
+def test_off_files_that_are_not_plain_go_to_trimesh_and_still_load(tmp_path, text):
+    assert plain_off(text.encode()) is None
+    path = tmp_path / "x.off"
+    path.write_text(text)
+    try:
+        mesh = read_mesh(path, "off")
+    except InputError:
+        return  # what trimesh cannot read is refused, typed
+    assert len(mesh.faces) >= 1
+
+
+def test_a_one_line_off_header_is_plain():
+    vertices, faces = plain_off(b"OFF 4 2 0\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n3 0 1 2\n3 0 1 3\n")
+    assert vertices.shape == (4, 3) and faces.tolist() == [[0, 1, 2], [0, 1, 3]]
 
 
 @pytest.mark.parametrize("ext", ["obj", "ply", "stl", "off", "glb"])

@@ -302,6 +302,90 @@ def test_what_rests_on_the_removed_floor_reaches_it_by_default_at_no_hull(rng):
     assert high.cloud.info.get("grounded_hulls", 0) == 0
 
 
+def test_resting_on_finds_the_support_the_object_below_or_nothing_and_whether_it_stands():
+    """An object rests on the plane when its lowest vertex is within RESTING_BANDS bands of it,
+    else on the lowest object below it that its base touches (within the same reach), else on
+    nothing (held); of two objects floating one on the other, the lower is held and the upper
+    rests on it; with no real support plane nothing rests on the ground. It stands where its
+    centre of mass is over what it touches: a post with a long heavy arm tips over."""
+    from pointcvx.decomposition.ground import RESTING_BANDS, centre_of_mass, resting_on
+
+    def box(lo, hi):
+        return np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+
+    up, band = np.array([0.0, 0.0, 1.0]), 0.01
+    floor = [box([0, 0, 0.0], [1, 1, 1])]
+    on_it = [box([0.2, 0.2, 1.0 + 0.5 * RESTING_BANDS * band], [0.8, 0.8, 1.5])]  # a hair above its top
+    beside = [box([3, 0, 0.9], [4, 1, 1.2])]  # nothing under it
+    above = [box([3.2, 0.2, 1.2 + band], [3.8, 0.8, 1.6])]  # on the one held beside
+    gap = [box([5, 0, 2 * RESTING_BANDS * band], [6, 1, 1])]  # just out of reach of the floor
+    gallows = [box([7, 0, 0], [7.1, 0.1, 1]), box([7, 0, 0.9], [9, 1, 1])]  # its arm outweighs its foot
+    objects = [on_it, floor, beside, above, gap, gallows]
+    assert resting_on(objects, up, 0.0, band) == [(1, True), ("support", True), (None, False), (2, True),
+                                                  (None, False), ("support", False)]
+    no_floor = resting_on(objects, up, 0.0, band, support=False)
+    assert [on for on, _ in no_floor] == [1, None, None, 2, None, None]
+    assert resting_on([[box([0, 0, 0.02], [1, 1, 1])]], up, 0.0, band) == [("support", True)]  # 2 bands up
+    np.testing.assert_allclose(centre_of_mass(floor), [0.5, 0.5, 0.5])
+    np.testing.assert_allclose(centre_of_mass([box([0, 0, 0], [1, 1, 1]), box([1, 0, 0], [4, 1, 1])]),
+                               [2.0, 0.5, 0.5])
+
+
+def test_an_object_held_over_the_floor_is_a_static_body_in_the_scene_files(rng, tmp_path):
+    """A box standing on the floor and a box held 0.4 over it (a shelf on a wall that the scan
+    does not show): the first rests on the support, the second on nothing, so it is static in
+    MJCF (no free joint: MuJoCo leaves it where it was) and in USD (colliders without a rigid
+    body), reported per object and in the totals."""
+    mujoco = pytest.importorskip("mujoco")
+    standing, held = ([-1.2, -0.3, 0.0], [-0.4, 0.3, 0.6], 5000), ([0.4, -0.3, 0.4], [1.2, 0.3, 0.8], 5000)
+    scene = _on_floor([standing, held], rng)
+    result = pointcvx.decompose(scene, features="fast", seed=0, n_points=8000, scene="on")
+    assert len(result.objects) == 2
+    by_x = sorted(result.objects, key=lambda o: o["bounds"][0][0])
+    assert [o["rests_on"] for o in by_x] == ["support", None]
+    assert [o["stands"] for o in by_x] == [True, False] and [o["static"] for o in by_x] == [False, True]
+    assert result.report()["totals"]["static_objects"] == 1
+    xml = result.export(tmp_path / "held.xml")[0]
+    model = mujoco.MjModel.from_xml_path(str(xml))
+    held = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, by_x[1]["name"])
+    standing = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, by_x[0]["name"])
+    assert model.body_jntnum[held] == 0 and model.body_jntnum[standing] == 1
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    start = data.xpos.copy()
+    for _ in range(int(1.0 / model.opt.timestep)):
+        mujoco.mj_step(model, data)
+    assert np.linalg.norm(data.xpos[held] - start[held]) == 0.0
+    assert np.linalg.norm(data.xpos[standing] - start[standing]) < 0.01
+    pytest.importorskip("pxr")
+    from pxr import Usd, UsdPhysics
+
+    stage = Usd.Stage.Open(str(result.export(tmp_path / "held.usda")[0]))
+    bodies = {p.GetName() for p in stage.Traverse() if p.HasAPI(UsdPhysics.RigidBodyAPI)}
+    assert bodies == {by_x[0]["name"]}
+    colliders = [p for p in stage.Traverse() if p.HasAPI(UsdPhysics.CollisionAPI)
+                 and str(p.GetPath()).startswith(f"/held/{by_x[1]['name']}/")]
+    assert len(colliders) == len(by_x[1]["hulls"])
+
+
+def test_the_cli_says_which_objects_are_static(tmp_path, rng):
+    """The command's last line names the objects held by what the capture does not show."""
+    import subprocess
+    import sys
+
+    standing = box_points([-1.2, -0.3, 0.0], [-0.4, 0.3, 0.6], 5000, rng)
+    held = box_points([0.4, -0.3, 0.4], [1.2, 0.3, 0.8], 5000, rng)
+    floor = np.stack([rng.uniform(-2, 2, 8000), rng.uniform(-1.5, 1.5, 8000), np.zeros(8000)], axis=1)
+    path = _write_xyz(tmp_path / "held.xyz", np.concatenate([standing, held, floor]))
+    cmd = [sys.executable, "-m", "pointcvx", "decompose", str(path), "-o", str(tmp_path / "h.xml"),
+           "--features", "fast", "--points", "6000"]
+    run = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr
+    line = run.stdout.strip().splitlines()[-1]
+    assert "a scene of 2 objects" in line
+    assert "; 1 object held by what the capture does not show (object_" in line
+
+
 def test_a_scenes_hull_budget_is_shared_by_its_objects(rng):
     """``max_hulls`` bounds the scene's hulls, not each object's: an L (two convex pieces) and
     a box on a floor take three hulls at a budget of 8 and at 3; at 2 the box keeps its hull,

@@ -439,8 +439,11 @@ class Decomposer:
             if (sizes >= MIN_PART_POINTS).sum() > 1:
                 return
         pts = self.points[indices]
-        for c in self.candidates:
-            side = self._cluster(indices, self.blend * c, seed)
+        self.load_features()  # once, here: the clusterings below share them
+        # The clusterings of the blends are independent (each seeded alike): on the worker
+        # threads, in order.
+        clustered = pmap(lambda c: self._cluster(indices, self.blend * c, seed), self.candidates)
+        for side in clustered:
             yield side, MIN_PART_POINTS
             # The same split made planar: convex pieces meet along planes, and a clean planar
             # cut leaves no holes in either side's surface.

@@ -177,7 +177,7 @@ def plan(result, path: str | os.PathLike, format: str | None = None, per_hull: b
         for obj in groups:
             mine = {i: solids[i] for i in obj["hulls"] if i in solids}
             mass, center, _ = mass_properties(list(mine.values()), density)
-            bodies.append((obj["name"], mine, mass, center))
+            bodies.append((obj["name"], mine, mass, center, bool(obj.get("static"))))
         return {main: usda_scene_text(usd_identifier(main.stem), bodies, rotation, scene_support(result),
                                       walls=scene_walls(result))}
     name = main.stem
@@ -191,7 +191,8 @@ def plan(result, path: str | os.PathLike, format: str | None = None, per_hull: b
         for f, i in zip(collision, mine, strict=True):
             files[main.parent / f] = mesh_obj_text(*solids[i], Path(f).stem)
         mass, center, inertia = mass_properties([solids[i] for i in mine], density)
-        bodies.append(Body(obj["name"] or name, collision, list(collision), mass, center, inertia))
+        bodies.append(Body(obj["name"] or name, collision, list(collision), mass, center, inertia,
+                           static=bool(obj.get("static"))))
     if result.objects:
         support = scene_support(result)
         if fmt == "urdf":

@@ -33,6 +33,7 @@ def report(result) -> dict[str, Any]:
               "noise_points": int(result.cloud.info.get("noise_points", 0)),
               "air_points": int(result.cloud.info.get("air_points", 0)),
               "grounded_hulls": int(result.cloud.info.get("grounded_hulls", 0)),
+              "static_objects": int(sum(bool(o.get("static")) for o in result.objects or [])),
               "max_offset": float(offsets.max()) if len(offsets) else 0.0}
     extra = {}
     if result.objects:

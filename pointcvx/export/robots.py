@@ -118,6 +118,8 @@ class Body:
     mass: float = 0.0
     center: np.ndarray = field(default_factory=lambda: np.zeros(3))
     inertia: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
+    #: A scene's object held by something out of view (no support under it): it does not move.
+    static: bool = False
 
 
 @dataclass
@@ -274,7 +276,8 @@ def mjcf_scene_text(name: str, bodies: list[Body], rotation: np.ndarray, support
                     free_joint: bool = True, density: float = 1000.0, walls: tuple = ()) -> str:
     """An MJCF model of a scene: the support as a static plane geom, each of ``walls``
     (:class:`StaticBox`) as a static box geom, and one body per object (free unless
-    ``free_joint`` is False), all turned by ``rotation`` so the scene's up is +z."""
+    ``free_joint`` is False or the body is ``static``), all turned by ``rotation`` so the
+    scene's up is +z."""
     from xml.sax.saxutils import quoteattr as q
 
     lines = [*_mjcf_head(name, density, q), *_mjcf_assets(bodies, q), "  </asset>", "  <worldbody>"]
@@ -288,6 +291,6 @@ def mjcf_scene_text(name: str, bodies: list[Body], rotation: np.ndarray, support
         lines.append(f'    <geom name="wall_{k:02d}" type="box" size="{_vec(np.asarray(extents) / 2)}" '
                      f'pos="{_vec(rotation @ centre)}" quat="{_vec(quaternion(rotation @ frame))}"/>')
     for body in bodies:
-        lines += _mjcf_body(body, free_joint, rotation, q)
+        lines += _mjcf_body(body, free_joint and not body.static, rotation, q)
     lines += ["  </worldbody>", "</mujoco>"]
     return "\n".join(lines) + "\n"

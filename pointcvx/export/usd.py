@@ -81,8 +81,13 @@ def _orient_lines(rotation: np.ndarray | None, indent: str) -> list[str]:
             f"{fmt_number(z)})", f'{indent}uniform token[] xformOpOrder = ["xformOp:orient"]']
 
 
-def _body_lines(name: str, hulls, visual, mass: float, center, digits: int, indent: str) -> list[str]:
+def _body_lines(name: str, hulls, visual, mass: float, center, digits: int, indent: str,
+                static: bool = False) -> list[str]:
+    """A rigid body Xform ``name`` (or, ``static``, a plain Xform of colliders: it does not move)."""
     i2 = indent + "    "
+    if static:
+        return [f'{indent}def Xform "{name}"', f"{indent}{{", *_collision_lines(hulls, i2, digits),
+                f"{indent}}}"]
     lines = [f'{indent}def Xform "{name}" (',
              f'{i2}prepend apiSchemas = ["PhysicsRigidBodyAPI", "PhysicsMassAPI"]', f"{indent})",
              f"{indent}{{",
@@ -134,11 +139,12 @@ def _box_lines(name: str, box, digits: int) -> list[str]:
                             digits=digits), "    }"]
 
 
-def usda_scene_text(name: str, bodies: list[tuple[str, dict, float, np.ndarray]], rotation: np.ndarray,
+def usda_scene_text(name: str, bodies: list[tuple[str, dict, float, np.ndarray, bool]], rotation: np.ndarray,
                     support, digits: int = 17, walls: tuple = ()) -> str:
     """A USD text layer of a scene: the default prim Xform ``name`` turned by ``rotation`` (the
     scene's up to Z) holding a rigid body Xform per object (``bodies``: (name, hull index ->
-    ((v, 3), (f, 3)), mass, (3,) centre)) and, for ``support`` (a
+    ((v, 3), (f, 3)), mass, (3,) centre, static: an object held by something out of view is a
+    plain Xform of colliders, which does not move) and, for ``support`` (a
     :class:`~pointcvx.export.robots.Support`), a static collider box ``support``, and one
     ``wall_NN`` for each of ``walls`` (:class:`~pointcvx.export.robots.StaticBox`)."""
     lines = [*_layer_head(name, f"pointcvx scene: {len(bodies)} objects"), f'def Xform "{name}"', "{",
@@ -147,8 +153,9 @@ def usda_scene_text(name: str, bodies: list[tuple[str, dict, float, np.ndarray]]
         lines += _box_lines("support", support, digits)
     for k, wall in enumerate(walls):
         lines += _box_lines(f"wall_{k:02d}", wall, digits)
-    for body_name, hulls, mass, center in bodies:
-        lines += ["", *_body_lines(usd_identifier(body_name), hulls, None, mass, center, digits, "    ")]
+    for body_name, hulls, mass, center, static in bodies:
+        lines += ["", *_body_lines(usd_identifier(body_name), hulls, None, mass, center, digits, "    ",
+                                   static=static)]
     lines.append("}")
     return "\n".join(lines) + "\n"
 

@@ -136,6 +136,13 @@ def spacing(points: np.ndarray, sample: int = 20000) -> float:
     return float(np.median(cKDTree(sub).query(sub, k=2, workers=kd_workers(len(sub)))[0][:, 1]))
 
 
+def plane_tolerance(points: np.ndarray) -> float:
+    """How far from a plane of (n, 3) ``points`` its points may lie: :data:`PLANE_SPACINGS`
+    median spacings, and at least :data:`PLANE_EXTENT` of their extent."""
+    pts = np.asarray(points, dtype=np.float64)
+    return max(PLANE_SPACINGS * spacing(pts), PLANE_EXTENT * float(np.ptp(pts, axis=0).max()))
+
+
 def plane_basis(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Two (3,) float unit axes u, v of the plane with (3,) unit ``normal`` (u x v = normal)."""
     helper = np.eye(3)[int(np.argmin(np.abs(normal)))]
@@ -178,8 +185,7 @@ def support_plane(points: np.ndarray, *, up: np.ndarray | None = None, seed: int
     pts = np.asarray(points, dtype=np.float64)
     if len(pts) < 50:
         return None
-    extent = float(np.ptp(pts, axis=0).max())
-    tol = max(PLANE_SPACINGS * spacing(pts), PLANE_EXTENT * extent)
+    tol = plane_tolerance(pts)
     # a frame's floor is often a strip under walls and furniture: look further for it
     more = {} if up is None else {"min_share": FRAME_FLOOR_SHARE, "max_planes": FRAME_PLANES}
     for plane in find_planes(pts, tol, seed=seed, **more):
@@ -267,7 +273,7 @@ def walls(points: np.ndarray, sensor: np.ndarray, *, frame: np.ndarray | None = 
     found: list[Plane] = []
     if len(pts) < 50:
         return found
-    tol = max(PLANE_SPACINGS * spacing(pts), PLANE_EXTENT * float(np.ptp(pts, axis=0).max()))
+    tol = plane_tolerance(pts)
     while len(found) < MAX_WALLS and free.sum() >= 50:
         idx = np.flatnonzero(free)
         taken = 0
