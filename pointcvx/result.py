@@ -83,8 +83,12 @@ class Decomposition:
     objects : list of dict, optional
         For a scene (``decompose(..., scene=...)``): per object, its ``name``, the indices of its
         ``hulls``, its ``points`` count, its ``bounds`` (input units) and ``max_concavity``, and
-        where they apply its :data:`OUTCOMES` (``resolved_threshold``, ``max_hulls_reached``). Each
-        object was decomposed in its own normalised frame. None for a single object.
+        where they apply its :data:`OUTCOMES` (``resolved_threshold``, ``max_hulls_reached``),
+        what it ``rests_on`` ("support", another object's name, or None), whether it ``stands``
+        there (its centre of mass over where it touches; None without an up direction) and
+        whether it is ``static`` (held by something out of view: rests on nothing or does not
+        stand; :func:`pointcvx.decomposition.ground.resting_on`). Each object was decomposed in
+        its own normalised frame. None for a single object.
     removed_points : (m, 3) float64, optional
         What isolation removed from the input (support plane, clutter), in input units.
     """
@@ -475,10 +479,12 @@ def merge_parts(parts: list[Decomposition], pieces: list[np.ndarray], cloud: Ori
     # What each object rests on; one held by something out of view is a static body.
     rests = scene_rests(cloud.info, cloud.normalization.inverse(cloud.points),
                         [[hulls[h].vertices for h in obj["hulls"]] for obj in objects])
-    for obj, (on, stands) in zip(objects, rests or [], strict=False):
+    if rests is None:  # no up direction: nothing known to rest or to hold, every object free
+        rests = [(None, None)] * len(objects)
+    for obj, (on, stands) in zip(objects, rests, strict=True):
         obj["rests_on"] = objects[on]["name"] if isinstance(on, int) else on
         obj["stands"] = stands  # its centre of mass over where it touches what it rests on
-        obj["static"] = not stands
+        obj["static"] = stands is False
     for key in ("noise_points", "grounded_hulls"):
         count = sum(int(part.cloud.info.get(key, 0)) for part in parts)
         if count or key in cloud.info:

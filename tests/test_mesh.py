@@ -120,6 +120,7 @@ def test_plain_off_files_are_read_as_trimesh_reads_them(rel):
     "COFF\n3 1 0\n0 0 0 255 0 0 255\n1 0 0 255 0 0 255\n0 1 0 255 0 0 255\n3 0 1 2\n",  # colours
     "OFF\n3 1 0\n0 0 0 9\n1 0 0\n0 1 0\n3 0 1 2\n",  # a vertex line with an extra value
     "OFF\n3 2 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n",  # fewer faces than declared
+    "OFF\n3 1 0\n0\x0c0 0\n1 0 0\n0 1 0\n3 0 1 2\n",  # a form feed: a line break to trimesh
 ])
 def test_off_files_that_are_not_plain_go_to_trimesh_and_still_load(tmp_path, text):
     assert plain_off(text.encode()) is None

@@ -326,6 +326,19 @@ def test_resting_on_finds_the_support_the_object_below_or_nothing_and_whether_it
     no_floor = resting_on(objects, up, 0.0, band, support=False)
     assert [on for on, _ in no_floor] == [1, None, None, 2, None, None]
     assert resting_on([[box([0, 0, 0.02], [1, 1, 1])]], up, 0.0, band) == [("support", True)]  # 2 bands up
+    # what it touches counts from both sides: a top wider than its pedestal, a plank on two boxes
+    pedestal, top = [box([1, 1, 0], [2, 2, 1])], [box([0, 0, 1.0 + band], [3, 3, 1.1])]
+    left, right = [box([10, 0, 0], [11, 1, 1])], [box([13, 0, 0], [14, 1, 1])]
+    plank = [box([10.5, 0, 1.0 + band], [13.5, 1, 1.1])]
+    assert resting_on([pedestal, top, left, right, plank], up, 0.0, band, support=False) == [
+        (None, False), (0, True), (None, False), (None, False), (2, True)]
+    # a flat hull (a board) holds what lies on it; a point far beyond a sharp edge is not near it
+    board = [np.array([[0, 0, 0.5], [2, 0, 0.5], [2, 2, 0.5], [0, 2, 0.5]])]
+    cup = [box([0.5, 0.5, 0.5 + band], [1.5, 1.5, 1.0])]
+    assert resting_on([board, cup], up, 0.0, band, support=False) == [(None, False), (0, True)]
+    wedge = [np.array([[0, 0, 0], [0, 1, 0], [0, 0, 1], [0, 1, 1], [10, 0, 0.5], [10, 1, 0.5]])]
+    beyond = [box([10.4, 0, 0.51], [11, 1, 1])]  # 0.4 past the wedge's tip edge, 16 reaches
+    assert resting_on([wedge, beyond], up, 0.0, band, support=False)[1] == (None, False)
     np.testing.assert_allclose(centre_of_mass(floor), [0.5, 0.5, 0.5])
     np.testing.assert_allclose(centre_of_mass([box([0, 0, 0], [1, 1, 1]), box([1, 0, 0], [4, 1, 1])]),
                                [2.0, 0.5, 0.5])

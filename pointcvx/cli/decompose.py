@@ -91,8 +91,8 @@ def summary_line(summary: dict, limits) -> str:
         line += f"; {summary['air_points']} points of hulls holding no material left out"
     if summary.get("grounded_hulls"):
         line += f"; {summary['grounded_hulls']} hulls reach down to the support plane"
-    if summary.get("static_objects"):
-        held = summary["static_objects"]
+    if summary.get("static_object_names"):
+        held = summary["static_object_names"]
         line += (f"; {len(held)} object{'s' if len(held) > 1 else ''} held by what the capture does "
                  f"not show ({', '.join(held)}): static in MJCF and USD")
     if summary.get("resolved_threshold"):
@@ -173,7 +173,7 @@ def run(args: argparse.Namespace) -> int:
     summary["features"] = result.params.get("features")
     if result.objects:
         summary["objects"] = len(result.objects)
-        summary["static_objects"] = [o["name"] for o in result.objects if o.get("static")]
+        summary["static_object_names"] = [o["name"] for o in result.objects if o.get("static")]
     if "isolation" in result.cloud.info:
         summary["removed"] = result.cloud.info["isolation"]["removed"]
     summary["noise_points"] = int(result.cloud.info.get("noise_points", 0))

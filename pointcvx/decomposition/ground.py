@@ -103,43 +103,66 @@ def resting_on(objects: list[list[np.ndarray]], normal: np.ndarray, offset: floa
     units. An object rests on the support when its lowest vertex is at most
     :data:`RESTING_BANDS` ``band`` above the plane (``support``: whether the plane is a real
     support; False for an up direction without one, which nothing rests on), touching it with
-    its base (its vertices within one ``band`` of its lowest); else on the lowest other object,
-    starting lower than it, that some of its base vertices are inside of, or within
-    :data:`RESTING_BANDS` ``band`` of, a hull of, touching it with those. Objects that float
-    together: the lowest of them is held, the others rest on it."""
-    from .hull import convex_hull, signed_plane_distance
+    its base (its vertices within one ``band`` of its lowest); else on the objects starting
+    lower than it that it touches (:func:`within` :data:`RESTING_BANDS` ``band``): its base
+    vertices on their hulls and their vertices at its base's height under its hulls (a table
+    top on a narrower pedestal, a plank across two boxes), named by the one with the most
+    contact points, standing if its centre is over all of them. Objects that float together:
+    the lowest of them is held, the others rest on it."""
+    from .hull import convex_hull
 
     n = np.asarray(normal, dtype=np.float64)
     n = n / np.linalg.norm(n)
     gap = RESTING_BANDS * float(band)
-    heights = [[np.asarray(v, dtype=np.float64) @ n - offset for v in hulls] for hulls in objects]
+    verts = [[np.asarray(v, dtype=np.float64).reshape(-1, 3) for v in hulls] for hulls in objects]
+    heights = [[v @ n - offset for v in hulls] for hulls in verts]
     lows = [min((float(h.min()) for h in hs if len(h)), default=np.inf) for hs in heights]
     out: list[tuple[str | int | None, bool]] = [(None, False)] * len(objects)
-    planes: dict[int, list] = {}
+    # Solid and flat hulls (the exports grow a flat one into a slab): what can be touched.
+    solids = [[h for h in (convex_hull(v) for v in hulls if len(v) >= 3) if h.dim >= 2] for hulls in verts]
     for k in np.argsort(lows, kind="stable"):
         if not np.isfinite(lows[k]):
             continue
-        base = np.concatenate([np.asarray(v, dtype=np.float64)[h <= lows[k] + band]
-                               for v, h in zip(objects[k], heights[k], strict=True)])
+        base = np.concatenate([v[h <= lows[k] + band] for v, h in zip(verts[k], heights[k], strict=True)])
         on, contact = None, base
         if support and lows[k] <= gap:
             on = "support"
-        else:
+        else:  # every lower object it touches: its base on their hulls, their tops under its hulls
+            touched, pieces = [], []
             for j in np.argsort(lows, kind="stable"):
                 if j == k or not lows[j] < lows[k]:
                     continue
-                if j not in planes:
-                    planes[j] = [h for h in (convex_hull(v) for v in objects[j] if len(v) >= 4) if h.dim == 3]
-                near = np.zeros(len(base), dtype=bool)
-                for h in planes[j]:
-                    near |= signed_plane_distance(h, base) <= gap
-                if near.any():
-                    on, contact = int(j), base[near]
-                    break
+                mine = base[within(solids[j], base, gap)]
+                top = np.concatenate([v[(h >= lows[k] - gap) & (h <= lows[k] + band)]
+                                      for v, h in zip(verts[j], heights[j], strict=True)])
+                theirs = top[within(solids[k], top, gap)]
+                if len(mine) + len(theirs):
+                    touched.append((len(mine) + len(theirs), -len(touched), int(j)))
+                    pieces += [mine, theirs]
+            if touched:
+                on, contact = max(touched)[2], np.concatenate(pieces)
         if on is not None:
             centre = centre_of_mass(objects[k])
             out[k] = (on, centre is not None and over_base(centre, contact, n))
     return out
+
+
+def within(hulls: list, points: np.ndarray, reach: float) -> np.ndarray:
+    """(m,) bool: which of (m, 3) ``points`` lie inside one of ``hulls`` (Polytopes) or within
+    about ``reach`` of one: the largest signed plane distance (a lower bound of the distance
+    outside, short beyond a sharp edge) at most ``reach``, inside the hull's box grown by
+    ``reach`` (which bounds the distance by sqrt(3) ``reach``)."""
+    from .hull import signed_plane_distance
+
+    near = np.zeros(len(points), dtype=bool)
+    for h in hulls:
+        if not len(points):
+            break
+        lo, hi = h.vertices.min(axis=0) - reach, h.vertices.max(axis=0) + reach
+        boxed = np.flatnonzero(np.all((points >= lo) & (points <= hi), axis=1))
+        if len(boxed):
+            near[boxed[signed_plane_distance(h, points[boxed]) <= reach]] = True
+    return near
 
 
 def scene_rests(info: dict, points: np.ndarray, objects: list[list[np.ndarray]]) -> list | None:

@@ -118,7 +118,8 @@ class Body:
     mass: float = 0.0
     center: np.ndarray = field(default_factory=lambda: np.zeros(3))
     inertia: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))
-    #: A scene's object held by something out of view (no support under it): it does not move.
+    #: A scene's object held by something out of view (resting on nothing, or not standing
+    #: where it rests): it does not move.
     static: bool = False
 
 

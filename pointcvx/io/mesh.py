@@ -30,6 +30,9 @@ _TRIMESH_TYPE = {"obj": "obj", "ply-mesh": "ply", "stl": "stl", "off": "off", "g
 # What trimesh raises on files it cannot parse (AssertionError: the glTF reader's size checks).
 _PARSE_ERRORS = (ValueError, IndexError, KeyError, TypeError, OSError, EOFError, AttributeError,
                  AssertionError, RecursionError, UnicodeDecodeError, struct.error)
+#: Not a plain OFF (:func:`plain_off`): a comment, a line break of ``str.splitlines`` that
+#: ``bytes.splitlines`` does not know, or any byte beyond ASCII.
+_NOT_PLAIN = re.compile(rb"[#\x0b\x0c\x1c-\x1e\x80-\xff]")
 _OBJ_ZERO = re.compile(rb"[ \t][-+]?0+(?=[/ \t\r\n]|$)")
 
 
@@ -63,7 +66,7 @@ def plain_off(data: bytes) -> tuple[np.ndarray, np.ndarray] | None:
     None for anything else, which trimesh reads. The same arrays as trimesh's reader (its
     Python loop over the lines took 0.25 s of loading ``bunny.off``, 35k vertices; this
     0.04 s)."""
-    if b"#" in data:
+    if _NOT_PLAIN.search(data):
         return None
     lines = [ln for ln in data.splitlines() if ln.strip()]
     if not lines:
