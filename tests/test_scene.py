@@ -358,6 +358,11 @@ def test_an_object_held_over_the_floor_is_a_static_body_in_the_scene_files(rng, 
     assert [o["rests_on"] for o in by_x] == ["support", None]
     assert [o["stands"] for o in by_x] == [True, False] and [o["static"] for o in by_x] == [False, True]
     assert result.report()["totals"]["static_objects"] == 1
+    from pointcvx.view import drawing_from
+    from pointcvx.view.png import caption_parts
+
+    legend = drawing_from(result).legend  # the picture says which objects are static
+    assert legend["static"] == by_x[1]["name"] and f"static: {by_x[1]['name']}" in caption_parts(legend)
     xml = result.export(tmp_path / "held.xml")[0]
     model = mujoco.MjModel.from_xml_path(str(xml))
     held = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, by_x[1]["name"])

@@ -48,7 +48,8 @@ class Drawing:
         ``points_total`` (drawn and given), ``removed``, ``noise`` (a scan's or splat's points
         in no hull), ``resolved_threshold`` (the largest threshold an object too sparse for the
         asked one was cut at), ``budget`` (``max_hulls``, where that budget stopped the split
-        above the threshold); ``None`` where unknown.
+        above the threshold), ``static`` (the names of a scene's objects that are static bodies
+        in the exports, held by what the capture does not show); ``None`` where unknown.
     up : str
         The axis that points up, one of :data:`UP_AXES`.
     up_exact : (3,) float64, optional
@@ -165,6 +166,9 @@ def _legend_of(x) -> dict[str, Any]:
         # the hull budget stopped the split above the threshold (Decomposition.budget_stopped)
         stopped = getattr(x, "budget_stopped", [])
         legend["budget"] = x.params.get("max_hulls") if stopped else None
+        # a scene's objects held by what the capture does not show: static bodies in the exports
+        held = [o["name"] for o in getattr(x, "objects", None) or [] if o.get("static")]
+        legend["static"] = ", ".join(held) if held else None
     return legend
 
 

@@ -330,6 +330,8 @@ def caption_parts(legend: dict) -> list[str]:
         parts.append(f"{legend['removed']:,} removed (grey)")
     if legend.get("noise"):
         parts.append(f"{legend['noise']:,} noise")
+    if legend.get("static"):
+        parts.append(f"static: {legend['static']}")
     return [str(p) for p in parts if p]
 
 

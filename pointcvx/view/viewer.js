@@ -235,6 +235,7 @@
     if (L.removed) rows.push(["removed", L.removed.toLocaleString() + " (grey)"]);
     if (L.noise) rows.push(["noise", L.noise.toLocaleString() + " points in no hull"]);
     if (L.resolved_threshold) rows.push(["sparse", "cut at " + L.resolved_threshold.toPrecision(3)]);
+    if (L.static) rows.push(["static", L.static + " (held by what the capture does not show)"]);
     var table = document.getElementById("stats");
     rows.forEach(function (r) {
       var tr = document.createElement("tr"), a = document.createElement("td"), b = document.createElement("td");
