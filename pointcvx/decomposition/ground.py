@@ -120,7 +120,8 @@ def resting_on(objects: list[list[np.ndarray]], normal: np.ndarray, offset: floa
     out: list[tuple[str | int | None, bool]] = [(None, False)] * len(objects)
     # Solid and flat hulls (the exports grow a flat one into a slab): what can be touched.
     solids = [[h for h in (convex_hull(v) for v in hulls if len(v) >= 3) if h.dim >= 2] for hulls in verts]
-    for k in np.argsort(lows, kind="stable"):
+    order = np.argsort(lows, kind="stable")  # lowest first
+    for k in order:
         if not np.isfinite(lows[k]):
             continue
         base = np.concatenate([v[h <= lows[k] + band] for v, h in zip(verts[k], heights[k], strict=True)])
@@ -129,9 +130,9 @@ def resting_on(objects: list[list[np.ndarray]], normal: np.ndarray, offset: floa
             on = "support"
         else:  # every lower object it touches: its base on their hulls, their tops under its hulls
             touched, pieces = [], []
-            for j in np.argsort(lows, kind="stable"):
-                if j == k or not lows[j] < lows[k]:
-                    continue
+            for j in order:
+                if not lows[j] < lows[k]:
+                    break  # the rest start no lower than it (itself included)
                 mine = base[within(solids[j], base, gap)]
                 top = np.concatenate([v[(h >= lows[k] - gap) & (h <= lows[k] + band)]
                                       for v, h in zip(verts[j], heights[j], strict=True)])
@@ -153,13 +154,15 @@ def within(hulls: list, points: np.ndarray, reach: float) -> np.ndarray:
     outside, short beyond a sharp edge) at most ``reach``, inside the hull's box grown by
     ``reach`` (which bounds the distance by sqrt(3) ``reach``)."""
     from .hull import signed_plane_distance
+    from .tree import in_box
 
     near = np.zeros(len(points), dtype=bool)
+    columns = points.T
     for h in hulls:
         if not len(points):
             break
         lo, hi = h.vertices.min(axis=0) - reach, h.vertices.max(axis=0) + reach
-        boxed = np.flatnonzero(np.all((points >= lo) & (points <= hi), axis=1))
+        boxed = np.flatnonzero(in_box(columns, lo, hi))
         if len(boxed):
             near[boxed[signed_plane_distance(h, points[boxed]) <= reach]] = True
     return near
