@@ -348,6 +348,72 @@ def test_organised_pcd_frame_drops_nan_holes_and_keeps_its_organisation(dragon, 
         assert np.allclose(cloud.points, v[np.isfinite(v).all(axis=1)], atol=1e-6)
 
 
+def depth_frame(mesh, cam, width: int = 160, height: int = 120) -> tuple[np.ndarray, np.ndarray]:
+    """An organised depth frame of ``mesh`` in front of a back wall and on a floor (one box mesh
+    each), seen by a pinhole at ``cam`` looking along +z (rows going down -y): (height * width, 3)
+    float32 points in pixel order, NaN where a ray hits nothing, and (height * width, 3) the
+    outward normal of the mesh's face each ray hit (NaN off the mesh)."""
+    import open3d as o3d
+
+    lo, hi = mesh.bounds
+    size = float(np.max(hi - lo))
+    wall = trimesh.creation.box(extents=[2.5 * size, 8 * size, 0.1 * size])
+    wall.apply_translation([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, hi[2] + 0.5 * size])
+    floor = trimesh.creation.box(extents=[8 * size, 0.1 * size, 8 * size])
+    floor.apply_translation([(lo[0] + hi[0]) / 2, lo[1] - 0.05 * size, (lo[2] + hi[2]) / 2])
+    scene = o3d.t.geometry.RaycastingScene()
+    for m in (mesh, wall, floor):
+        scene.add_triangles(o3d.core.Tensor(np.asarray(m.vertices, np.float32)),
+                            o3d.core.Tensor(np.asarray(m.faces, np.uint32)))
+    u, v = np.meshgrid((np.arange(width) - width / 2) / width, (np.arange(height) - height / 2) / width)
+    dirs = np.stack([u.ravel(), -v.ravel(), np.ones(u.size)], axis=1)
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    rays = np.hstack([np.repeat(np.asarray(cam, float)[None], len(dirs), 0), dirs]).astype(np.float32)
+    hit = scene.cast_rays(o3d.core.Tensor(rays))
+    t = hit["t_hit"].numpy()
+    pts = np.asarray(cam, float) + dirs * np.where(np.isfinite(t), t, np.nan)[:, None]
+    on = hit["geometry_ids"].numpy() == 0
+    truth = np.full(pts.shape, np.nan)
+    truth[on] = mesh.face_normals[hit["primitive_ids"].numpy()[on]]
+    return pts.astype(np.float32), truth
+
+
+def test_an_organised_frames_normals_face_its_sensor(dragon, tmp_path):
+    """One depth frame sees only surfaces that face its sensor: the dragon on a floor before a
+    back wall, with the sensor away from the origin (PCD VIEWPOINT). The convex-hull vote read
+    such a frame's far wall as the outside and turned it, and what the propagation joined to it,
+    away from the sensor (the Kinect frame of raw_scans came out inward everywhere)."""
+    lo, hi = dragon.bounds
+    centre = (lo + hi) / 2
+    cam = np.array([centre[0], centre[1] + 0.3 * (hi[1] - lo[1]), lo[2] - 1.5 * np.max(hi - lo)])
+    v, truth = depth_frame(dragon, cam)
+    assert np.isnan(v).any() and np.isfinite(truth).all(axis=1).sum() > 1000
+    header = ("# .PCD v0.7\nVERSION 0.7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\nWIDTH 160\n"
+              "HEIGHT 120\nVIEWPOINT {} {} {} 1 0 0 0\nPOINTS 19200\nDATA binary\n").format(*cam)
+    path = tmp_path / "frame.pcd"
+    path.write_bytes(header.encode() + v.tobytes())
+    cloud = pointcvx.load(path, normalize=False, isolate="none", outlier_neighbors=0)
+    assert cloud.info["normals"] == "estimated (PCA k=24), facing the sensor"
+    facing = np.einsum("ij,ij->i", cloud.normals, cam - cloud.points)
+    assert (facing > 0).all()
+    # against the dragon's faces (the frame's points in pixel order, less its holes)
+    truth = truth[np.isfinite(v).all(axis=1)]
+    on_dragon = np.isfinite(truth).all(axis=1)
+    assert len(truth) == len(cloud) and on_dragon.sum() > 1000
+    assert np.mean(np.einsum("ij,ij->i", cloud.normals[on_dragon], truth[on_dragon]) > 0) > 0.95
+    # normals read from the frame are turned the same way
+    nrm = -np.nan_to_num(v - cam)  # pointing away from the sensor
+    nrm[~np.isfinite(v).all(axis=1)] = np.nan
+    with_normals = tmp_path / "frame_normals.pcd"
+    six = (header.replace("FIELDS x y z", "FIELDS x y z normal_x normal_y normal_z")
+           .replace("SIZE 4 4 4", "SIZE 4 4 4 4 4 4").replace("TYPE F F F", "TYPE F F F F F F")
+           .replace("COUNT 1 1 1", "COUNT 1 1 1 1 1 1"))
+    with_normals.write_bytes(six.encode() + np.hstack([v, nrm.astype(np.float32)]).tobytes())
+    cloud = pointcvx.load(with_normals, normalize=False, isolate="none", outlier_neighbors=0)
+    assert cloud.info["normals"] == "from file, facing the sensor"
+    assert (np.einsum("ij,ij->i", cloud.normals, cam - cloud.points) > 0).all()
+
+
 def test_pcd_declaring_far_more_points_than_it_holds(dragon, tmp_path):
     # open3d allocated what a compressed block declared (std::bad_alloc for 10^12 points)
     v = np.asarray(dragon.vertices)[:100]

@@ -15,7 +15,9 @@ The file readers (PLY vertices, OBJ ``v`` lines, PCD, XYZ/PTS, LAS) are in
 5. a consistent outward sign: :func:`pointcvx.io.orient.orient_normals` (MST propagation, then a
    convex-hull vote per piece), then :func:`face_one_viewer`, which turns every piece of a partial
    (one-sided) scan towards the same viewer. Normals read from the file keep their sign when it
-   is consistent with that result (:func:`orient_given_normals`).
+   is consistent with that result (:func:`orient_given_normals`). An organised depth frame's
+   normals, estimated or read, are instead turned to face its sensor (:func:`face_sensor`): one
+   frame sees only surfaces that face it.
 
 ``cloud.info`` records ``normals`` (how they were obtained), ``normals_flipped``,
 ``non_finite_dropped`` (files), ``organized`` and ``viewpoint`` (PCD frames),
@@ -133,6 +135,24 @@ def orient_scan_normals(points: np.ndarray, normals: np.ndarray, k: int = ORIENT
     oriented, openness, _ = face_one_viewer(points, oriented, k=k)
     flipped = int(np.count_nonzero(np.einsum("ij,ij->i", oriented, normals) < 0))
     return oriented, flipped, {"one_sided": openness >= ONE_SIDED_OPENNESS, "openness": round(openness, 3)}
+
+
+def frame_sensor(meta: dict) -> np.ndarray | None:
+    """(3,) float: where the sensor of an organised depth frame stood (its ``viewpoint``'s
+    translation; a PCD without one was taken at the origin), None for any other scan."""
+    if not meta.get("organized"):
+        return None
+    return np.asarray(meta.get("viewpoint", [0.0] * 7)[:3], dtype=np.float64)
+
+
+def face_sensor(points: np.ndarray, normals: np.ndarray, sensor: np.ndarray) -> tuple[np.ndarray, int]:
+    """(n, 3) ``normals`` of (n, 3) ``points`` turned to face ``sensor`` (3,), and how many were
+    flipped. In one depth frame every measured surface faced the sensor, so its outward normal
+    has a positive component towards it: the sign needs no propagation, and one frame's pieces
+    cannot disagree. (The convex-hull vote of :func:`orient_normals` reads a frame's far walls
+    as the outside and turned whole frames inward.)"""
+    flip = np.einsum("ij,ij->i", normals, sensor - points) < 0
+    return np.where(flip[:, None], -normals, normals), int(flip.sum())
 
 
 def orient_given_normals(points: np.ndarray, normals: np.ndarray, k: int = ORIENT_NEIGHBORS
@@ -257,7 +277,16 @@ def cloud_from_points(
     check_extent(pts)
 
     k_orient = min(ORIENT_NEIGHBORS, normal_neighbors, len(pts) - 1)
-    if normals is None:
+    sensor = frame_sensor(meta)
+    if sensor is not None:  # one depth frame: every normal faces the sensor
+        given = normals is not None
+        if not given:
+            k_pca = min(normal_neighbors, len(pts) - 1)
+            normals = estimate_normals(pts, k=k_pca)
+        normals, flipped = face_sensor(pts, normals, sensor)
+        details = {"one_sided": True}
+        meta["normals"] = ("from file" if given else f"estimated (PCA k={k_pca})") + ", facing the sensor"
+    elif normals is None:
         k_pca = min(normal_neighbors, len(pts) - 1)
         normals = estimate_normals(pts, k=k_pca)
         normals, flipped, details = orient_scan_normals(pts, normals, k=k_orient)
