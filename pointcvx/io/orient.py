@@ -28,7 +28,8 @@ def estimate_normals(points: np.ndarray, k: int = 24) -> np.ndarray:
     The normal is the eigenvector of the smallest eigenvalue of the neighbourhood covariance.
     """
     _, idx = knn(points, k)
-    nb = points[idx] - points[idx].mean(axis=1, keepdims=True)  # (n, k, 3)
+    nb = points[idx]  # (n, k, 3), gathered once and centred in place
+    nb -= nb.mean(axis=1, keepdims=True)
     cov = np.einsum("nki,nkj->nij", nb, nb)
     _, vecs = np.linalg.eigh(cov)  # ascending eigenvalues
     normals = vecs[:, :, 0]
