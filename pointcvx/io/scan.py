@@ -149,8 +149,8 @@ def face_sensor(points: np.ndarray, normals: np.ndarray, sensor: np.ndarray) -> 
     """(n, 3) ``normals`` of (n, 3) ``points`` turned to face ``sensor`` (3,), and how many were
     flipped. In one depth frame every measured surface faced the sensor, so its outward normal
     has a positive component towards it: the sign needs no propagation, and one frame's pieces
-    cannot disagree. (The convex-hull vote of :func:`orient_normals` reads a frame's far walls
-    as the outside and turned whole frames inward.)"""
+    cannot disagree. (The convex-hull vote of :func:`orient_normals` would read a frame's far
+    walls, the bulk of its hull, as the outside, and turn them away from the sensor.)"""
     flip = np.einsum("ij,ij->i", normals, sensor - points) < 0
     return np.where(flip[:, None], -normals, normals), int(flip.sum())
 
