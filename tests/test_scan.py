@@ -402,7 +402,7 @@ def test_an_organised_frames_normals_face_its_sensor(dragon, tmp_path):
     assert len(truth) == len(cloud) and on_dragon.sum() > 1000
     assert np.mean(np.einsum("ij,ij->i", cloud.normals[on_dragon], truth[on_dragon]) > 0) > 0.95
     # normals read from the frame are turned the same way
-    nrm = -np.nan_to_num(v - cam)  # pointing away from the sensor
+    nrm = np.nan_to_num(v - cam)  # along the rays: away from the sensor, every one to flip
     nrm[~np.isfinite(v).all(axis=1)] = np.nan
     with_normals = tmp_path / "frame_normals.pcd"
     six = (header.replace("FIELDS x y z", "FIELDS x y z normal_x normal_y normal_z")
@@ -411,6 +411,7 @@ def test_an_organised_frames_normals_face_its_sensor(dragon, tmp_path):
     with_normals.write_bytes(six.encode() + np.hstack([v, nrm.astype(np.float32)]).tobytes())
     cloud = pointcvx.load(with_normals, normalize=False, isolate="none", outlier_neighbors=0)
     assert cloud.info["normals"] == "from file, facing the sensor"
+    assert cloud.info["normals_flipped"] == len(cloud)
     assert (np.einsum("ij,ij->i", cloud.normals, cam - cloud.points) > 0).all()
 
 
