@@ -136,7 +136,7 @@ def test_the_kinect_frames_objects_reach_the_floor_and_rest_on_it_in_mujoco(tmp_
         mujoco.mj_step(model, data)
     assert np.linalg.norm(data.xpos - start, axis=1).max() < 0.01
     # The hulls keep out of the space the sensor saw through (in front of what it measured):
-    # 1.4 % of their volume (tools/frame_free_space.py). With the frame's normals turned away
+    # 1.6 % of their volume (tools/frame_free_space.py). With the frame's normals turned away
     # from the sensor (the convex-hull vote's orientation) it was 15 %, one hull 49 %.
     share, worst = load_tool("frame_free_space").seen_through_share(
         DATA / "raw_scans" / "kinect_frame.pcd", result.hulls)

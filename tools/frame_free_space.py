@@ -6,8 +6,8 @@
 A depth frame has no true mesh to judge hulls against, but it does say where there is nothing:
 along each pixel's ray, the space in front of the measured point is empty. For each organised
 frame: ``pointcvx.decompose(FRAME, seed=S)`` at default settings, then ``N`` points sampled
-uniformly in each hull (input units) and projected into the frame with a pinhole fitted to its
-own pixels (column ~ x / z, row ~ y / z, least squares over the measured pixels). A sample whose
+uniformly in each hull (input units) and projected into the frame with a pinhole at its sensor
+fitted to its own pixels (column ~ x / z, row ~ y / z, least squares over the measured pixels). A sample whose
 pixel was measured farther away than the sample (by more than 3 % of its depth: the sensor's
 noise, as the wall rule allows) lies in space the sensor saw through. Printed per frame: hulls,
 their volume, the share of that volume seen through, the largest such share of one hull, and
@@ -30,17 +30,20 @@ DATA = (ROOT / ".." / "shared" / "data").resolve()
 DEPTH_NOISE = 0.03
 
 
-def organised_points(path: Path) -> tuple[np.ndarray, int, int]:
+def organised_points(path: Path) -> tuple[np.ndarray, np.ndarray, int, int]:
     """(h * w, 3) float points of an organised PCD in pixel order (NaN where nothing was
-    measured), its width and height."""
+    measured), (3,) where its sensor stood (``pointcvx.scene.frame_sensor``), its width and
+    height."""
     from pointcvx.io.pointfiles import read_scan
+    from pointcvx.scene import frame_sensor
 
     meta: dict = {}
     points = read_scan(path, "pcd", meta)[0]
-    if "organized" not in meta:
+    sensor = frame_sensor(meta)
+    if sensor is None:
         raise SystemExit(f"{path}: not an organised frame")
     w, h = meta["organized"]
-    return np.asarray(points, dtype=np.float64), w, h
+    return np.asarray(points, dtype=np.float64), sensor, w, h
 
 
 def fit_pinhole(points: np.ndarray, w: int) -> tuple[float, float, float, float]:
@@ -55,23 +58,9 @@ def fit_pinhole(points: np.ndarray, w: int) -> tuple[float, float, float, float]
     return fx, cx, fy, cy
 
 
-def hull_samples(vertices: np.ndarray, faces: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
-    """(m, 3) points uniform inside the convex hull (v, 3) / (f, 3), m <= n: rejection from the
-    box with the facets' planes."""
-    from scipy.spatial import ConvexHull, QhullError
-
-    try:
-        eq = ConvexHull(vertices).equations
-    except (QhullError, ValueError):
-        return np.zeros((0, 3))
-    lo, hi = vertices.min(0), vertices.max(0)
-    q = rng.uniform(lo, hi, (n, 3))
-    inside = (q @ eq[:, :3].T + eq[:, 3] <= 0).all(axis=1)
-    return q[inside]
-
-
 def seen_through(samples: np.ndarray, depth: np.ndarray, w: int, h: int, pinhole) -> tuple[int, int]:
-    """(samples judged, samples seen through) for (m, 3) ``samples`` in the frame's (h * w,) depths."""
+    """(samples judged, samples seen through) for (m, 3) ``samples`` (relative to the sensor) in
+    the frame's (h * w,) depths."""
     fx, cx, fy, cy = pinhole
     z = samples[:, 2]
     front = z > 0
@@ -89,15 +78,18 @@ def seen_through(samples: np.ndarray, depth: np.ndarray, w: int, h: int, pinhole
 def seen_through_share(path: Path, hulls, samples: int = 4000, seed: int = 0) -> tuple[float, float]:
     """(share of the ``hulls``' total volume the frame at ``path`` saw through, the largest
     share of one hull), each hull (a :class:`pointcvx.result.ConvexHull`, input units) judged
-    by ``samples`` draws in its box."""
-    points, w, h = organised_points(path)
+    by ``samples`` uniform draws inside it (``decomposition.hull.sample_hull_interior``)."""
+    from pointcvx.decomposition.hull import convex_hull, sample_hull_interior
+
+    points, sensor, w, h = organised_points(path)
+    points = points - sensor  # the pinhole's centre
     pinhole = fit_pinhole(points, w)
     depth = points[:, 2].copy()
     rng = np.random.default_rng(seed)
     volume = through_volume = worst = 0.0
     for hull in hulls:
-        judged, through = seen_through(hull_samples(hull.vertices, hull.faces, samples, rng),
-                                       depth, w, h, pinhole)
+        inside = sample_hull_interior(convex_hull(hull.vertices), samples, rng) - sensor
+        judged, through = seen_through(inside, depth, w, h, pinhole)
         share = through / judged if judged else 0.0
         volume += hull.volume
         through_volume += hull.volume * share
@@ -120,7 +112,7 @@ def frame_row(path: Path, samples: int, seed: int) -> dict:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("frames", nargs="*", type=Path)
-    ap.add_argument("--samples", type=int, default=4000, help="samples drawn per hull's box")
+    ap.add_argument("--samples", type=int, default=4000, help="samples drawn inside each hull")
     ap.add_argument("--seed", type=int, default=0)
     args = ap.parse_args(argv)
     frames = args.frames or [p for p in sorted((DATA / "raw_scans").glob("*.pcd"))

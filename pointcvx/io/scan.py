@@ -37,6 +37,7 @@ from scipy.spatial import cKDTree
 
 from ..cloud import MAX_COORDINATE, OrientedCloud, check_extent, check_points
 from ..errors import InputError
+from ..scene import frame_sensor
 from .orient import estimate_normals, orient_normals
 from .outliers import outlier_mask
 from .pointfiles import Arrays, read_scan
@@ -135,14 +136,6 @@ def orient_scan_normals(points: np.ndarray, normals: np.ndarray, k: int = ORIENT
     oriented, openness, _ = face_one_viewer(points, oriented, k=k)
     flipped = int(np.count_nonzero(np.einsum("ij,ij->i", oriented, normals) < 0))
     return oriented, flipped, {"one_sided": openness >= ONE_SIDED_OPENNESS, "openness": round(openness, 3)}
-
-
-def frame_sensor(meta: dict) -> np.ndarray | None:
-    """(3,) float: where the sensor of an organised depth frame stood (its ``viewpoint``'s
-    translation; a PCD without one was taken at the origin), None for any other scan."""
-    if not meta.get("organized"):
-        return None
-    return np.asarray(meta.get("viewpoint", [0.0] * 7)[:3], dtype=np.float64)
 
 
 def face_sensor(points: np.ndarray, normals: np.ndarray, sensor: np.ndarray) -> tuple[np.ndarray, int]:
@@ -277,17 +270,16 @@ def cloud_from_points(
     check_extent(pts)
 
     k_orient = min(ORIENT_NEIGHBORS, normal_neighbors, len(pts) - 1)
+    k_pca = min(normal_neighbors, len(pts) - 1)
     sensor = frame_sensor(meta)
     if sensor is not None:  # one depth frame: every normal faces the sensor
         given = normals is not None
         if not given:
-            k_pca = min(normal_neighbors, len(pts) - 1)
             normals = estimate_normals(pts, k=k_pca)
         normals, flipped = face_sensor(pts, normals, sensor)
         details = {"one_sided": True}
         meta["normals"] = ("from file" if given else f"estimated (PCA k={k_pca})") + ", facing the sensor"
     elif normals is None:
-        k_pca = min(normal_neighbors, len(pts) - 1)
         normals = estimate_normals(pts, k=k_pca)
         normals, flipped, details = orient_scan_normals(pts, normals, k=k_orient)
         meta["normals"] = f"estimated (PCA k={k_pca}) + oriented"

@@ -12,8 +12,8 @@ from .components import components
 from .isolate import SUPPORT_BAND, Isolation, isolate, support_plane, walls
 from .planes import Plane, find_planes, fit_plane, ransac_plane
 
-__all__ = ["Isolation", "Plane", "base_samples", "components", "find_planes", "fit_plane", "isolate",
-           "isolate_cloud", "ransac_plane", "support_plane", "walls", "with_closed_bases"]
+__all__ = ["Isolation", "Plane", "base_samples", "components", "find_planes", "fit_plane", "frame_sensor",
+           "isolate", "isolate_cloud", "ransac_plane", "support_plane", "walls", "with_closed_bases"]
 
 #: Modalities that ``isolate="auto"`` frees from their surroundings.
 ISOLATED_MODALITIES = ("splat", "scan")
@@ -29,6 +29,14 @@ def resolve_mode(mode: str, modality: str) -> str:
     return "all" if modality in ISOLATED_MODALITIES else "none"
 
 
+def frame_sensor(info: dict) -> np.ndarray | None:
+    """(3,) float: where the sensor of an organised depth frame stood (its ``viewpoint``'s
+    translation; a PCD without one was taken at the origin), None for any other cloud."""
+    if not info.get("organized"):
+        return None
+    return np.asarray(info.get("viewpoint", [0.0] * 7)[:3], dtype=np.float64)
+
+
 def isolate_cloud(cloud: OrientedCloud, mode: str = "auto", crop=None, seed: int = 0,
                   close_bases: bool = False) -> OrientedCloud:
     """``cloud`` (in its current coordinates) with its surroundings removed (:func:`isolate`):
@@ -39,10 +47,9 @@ def isolate_cloud(cloud: OrientedCloud, mode: str = "auto", crop=None, seed: int
     mode = resolve_mode(mode, cloud.modality)
     if mode == "none" and crop is None:
         return cloud
-    frame = bool(cloud.info.get("organized"))
+    sensor = frame_sensor(cloud.info)
+    frame = sensor is not None
     up = FRAME_UP if frame else None
-    # a depth frame's sensor: its viewpoint's position (the origin of the sensor frame)
-    sensor = np.asarray(cloud.info.get("viewpoint", [0.0] * 7)[:3], dtype=np.float64) if frame else None
     found = isolate(cloud.points, mode, crop=None if crop is None else np.reshape(crop, (2, 3)),
                     up=up, sensor=sensor, seed=seed)
     if found.keep.all():
