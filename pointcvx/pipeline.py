@@ -121,8 +121,8 @@ def preload(features: str = "auto", model: str | os.PathLike | None = None) -> N
     import importlib
 
     field = ("pointcvx.features.field",)
-    uses = {"optimize": field, "fast": field, "model": ("pointcvx.model.source",),
-            "auto": field + ("pointcvx.model.source",)}[features]
+    uses = {"optimize": field, "fast": field, "model": ("pointcvx.model.numpy_net",),
+            "auto": field + ("pointcvx.model.numpy_net",)}[features]
     for name in LAZY_MODULES + uses:
         with contextlib.suppress(ImportError):
             importlib.import_module(name)
@@ -144,10 +144,17 @@ def compute_features(cloud: OrientedCloud, solid, *, method: str = "auto", seed:
     """
     method = resolve_features(method, cloud.modality, model)
     if method == "model":
-        from .model.source import ModelFeatureSource
+        net = load_cached_model(model)  # numpy: a decomposition with one view imports no torch
+        if views == 1:
+            from .model.numpy_net import NumpyModelSource
 
-        net = load_cached_model(model)
-        source = ModelFeatureSource(net, cloud.points, cloud.normals, views=views)
+            source = NumpyModelSource(net, cloud.points, cloud.normals)
+        else:  # the rotated views of the test-time ensemble run in torch
+            from .model.source import ModelFeatureSource, load_model
+            from .model.weights import model_path
+
+            source = ModelFeatureSource(load_model(model_path(model)), cloud.points, cloud.normals,
+                                        views=views)
         return source, source.features(cloud.points)
     from .features import field
 

@@ -142,6 +142,16 @@ def test_decompose_on_a_mesh_at_default_settings_imports_no_torch_or_scikit_lear
     assert out.read_text().count("\no ") >= 1
 
 
+def test_decompose_on_a_splat_with_the_models_features_imports_no_torch(tmp_path):
+    """A splat's default features are the bundled model's, run in numpy
+    (:mod:`pointcvx.model.numpy_net`): torch's import was about 1.5 s of a one-shot run."""
+    out = tmp_path / "splat.obj"
+    names = imported("decompose", str(ROOT / "io" / "mug_splat.ply"), "-o", str(out), "-q", "-n", "3000")
+    assert "pointcvx.model.numpy_net" in names
+    assert "torch" not in names, sorted(n for n in names if n.startswith("torch"))
+    assert out.read_text().count("\no ") >= 1
+
+
 def test_one_shot_commands_exit_without_the_interpreters_teardown(tmp_path):
     """`pointcvx decompose` and `info` end the process as soon as they return (about 0.1 s of
     module finalisers saved on a one-shot run): an exit handler never runs, yet everything they

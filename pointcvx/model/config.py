@@ -14,6 +14,9 @@ import json
 from dataclasses import dataclass, field
 from typing import Any
 
+#: Axes of the three planes, as (width axis, height axis) of the (P, P) images: xy, xz, yz.
+PLANE_AXES = ((0, 1), (0, 2), (1, 2))
+
 
 @dataclass
 class EncoderConfig:

@@ -23,10 +23,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from .config import ModelConfig
-
-# Axes of the three planes, as (width axis, height axis) of the (P, P) images: xy, xz, yz.
-PLANE_AXES = ((0, 1), (0, 2), (1, 2))
+from .config import PLANE_AXES, ModelConfig
 
 
 # -------------------------------------------------------------------------- functional pieces

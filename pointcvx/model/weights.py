@@ -6,6 +6,7 @@ from __future__ import annotations
 import functools
 import os
 import pickle
+import zipfile
 from pathlib import Path
 
 from ..errors import InputError, PointcvxError, first_line
@@ -51,16 +52,18 @@ def check_model(features: str, model: str | os.PathLike | None) -> None:
 
 @functools.lru_cache(maxsize=4)
 def _cached(path: str, mtime_ns: int, size: int):
-    """The network of checkpoint ``path``, loaded once per process (keyed by the file's mtime and
-    size too, so a rewritten checkpoint is read again)."""
-    from .source import load_model
+    """The network of checkpoint ``path`` for inference (numpy, no torch:
+    :class:`~pointcvx.model.numpy_net.NumpyFeatureNet`), loaded once per process (keyed by the
+    file's mtime and size too, so a rewritten checkpoint is read again)."""
+    from .numpy_net import NumpyFeatureNet
 
-    return load_model(path)
+    return NumpyFeatureNet.load(path)
 
 
 def load_cached_model(model: str | os.PathLike | None = None):
-    """The feed-forward network of checkpoint ``model`` (default: the bundled one), loaded once
-    per process and reused by every later call (long-lived batch workers load it when they start).
+    """The feed-forward network of checkpoint ``model`` (default: the bundled one) for inference
+    (:class:`~pointcvx.model.numpy_net.NumpyFeatureNet`), loaded once per process and reused by
+    every later call (long-lived batch workers load it when they start).
 
     Raises
     ------
@@ -73,7 +76,8 @@ def load_cached_model(model: str | os.PathLike | None = None):
     try:
         stat = path.stat()
         return _cached(str(path.resolve()), stat.st_mtime_ns, stat.st_size)
-    except (KeyError, RuntimeError, ValueError, EOFError, pickle.UnpicklingError) as exc:
+    except (KeyError, RuntimeError, ValueError, TypeError, EOFError, StopIteration, OSError,
+            pickle.UnpicklingError, zipfile.BadZipFile) as exc:
         raise InputError(f"{path}: not a pointcvx model checkpoint ({first_line(exc, 120)})") from None
 
 
