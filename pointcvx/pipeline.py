@@ -10,6 +10,7 @@ import dataclasses
 import functools
 import inspect
 import os
+import threading
 import time
 from collections.abc import Callable
 from typing import Any
@@ -287,15 +288,39 @@ def _decompose_scene(cloud: OrientedCloud, pieces: list[np.ndarray], dec: Decomp
                      progress: Progress | None = None,
                      deadline: Deadline | None = None) -> Decomposition:
     """A scene: each object (a connected piece of the isolated cloud) decomposed in its own
-    normalised frame, so the threshold is relative to each object's size, then merged."""
+    normalised frame, so the threshold is relative to each object's size, then merged.
+
+    The objects run on the worker threads, each on one core (its own maps then serial, BLAS
+    single-threaded): an object's work is a pure function of its points and the seed, so the
+    hulls are those of one object after the other (docs/benchmarks.md, "Depth frames: normals
+    that face the sensor"). Progress is then one stage, ``"objects"``, counting finished objects; with one
+    thread or one object each object's own stages are reported (``"object 2/3 features"``)."""
+    from .workers import pmap, threads
+
     check_scene_budget(dec.max_hulls, len(pieces))  # before any object's work
-    parts = []
-    for k, idx in enumerate(pieces):
-        obj = cloud.subset(idx).normalized()
+    n = len(pieces)
+    at_once = threads() > 1 and n > 1
+    lock, finished = threading.Lock(), [0]
+
+    def one(k: int) -> Decomposition:
+        obj = cloud.subset(pieces[k]).normalized()
         obj.info["object"] = k
-        report = None if progress is None else (
-            lambda stage, done, total, k=k: progress(f"object {k + 1}/{len(pieces)} {stage}", done, total))
-        parts.append(_decompose_cloud(obj, dec, load, {"load": 0.0}, report, deadline))
+        report = None if progress is None or at_once else (
+            lambda stage, done, total: progress(f"object {k + 1}/{n} {stage}", done, total))
+        part = _decompose_cloud(obj, dec, load, {"load": 0.0}, report, deadline)
+        if progress is not None and at_once:
+            with lock:  # a user's callback is called by one thread at a time
+                finished[0] += 1
+                progress("objects", finished[0], n)
+        return part
+
+    if at_once:
+        if progress is not None:
+            progress("objects", 0, n)
+        with threadpool_limits(1):
+            parts = pmap(one, range(n))
+    else:
+        parts = [one(k) for k in range(n)]
     # max_hulls bounds the scene's hulls, not each object's
     return merge_parts(share_budget(parts, dec.max_hulls), pieces, cloud, {"load": loaded, "_start": t0})
 

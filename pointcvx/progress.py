@@ -40,7 +40,8 @@ class LazyBar:
 class StageBars:
     """One :class:`LazyBar` per pipeline stage, as a ``progress(stage, done, total)`` callback.
 
-    Stages run one after the other ("features", "split", or a scene's "object 2/3 features"):
+    Stages run one after the other ("features", "split", a scene's "object 2/3 features", or
+    its "objects" when they run at once):
     a new stage closes the bars before it, so one bar is on screen at a time.
     """
 
@@ -51,7 +52,8 @@ class StageBars:
     def __call__(self, stage: str, done: int, total: int) -> None:
         if stage not in self.bars:
             self.close()
-            self.bars[stage] = LazyBar(self.enabled, stage, "step" if stage.endswith("features") else "hull")
+            unit = "step" if stage.endswith("features") else "object" if stage == "objects" else "hull"
+            self.bars[stage] = LazyBar(self.enabled, stage, unit)
         self.bars[stage].set(done, total)
 
     def close(self) -> None:

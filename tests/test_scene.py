@@ -3,6 +3,9 @@ flat face), clutter dropped, the modes of ``isolate``, and scenes decomposed obj
 
 from __future__ import annotations
 
+import threading
+import time
+
 import numpy as np
 import pytest
 
@@ -421,6 +424,44 @@ def test_a_scenes_hull_budget_is_shared_by_its_objects(rng):
     assert sorted(len(o["hulls"]) for o in tight.recut(max_hulls=3).objects) == [1, 2]
     with pytest.raises(pointcvx.InputError, match="less than the scene's 2 objects"):
         pointcvx.decompose(scene, max_hulls=1, **opts)
+
+
+def test_a_scenes_objects_run_two_at_a_time_with_the_hulls_of_one_after_the_other(rng):
+    """With two worker threads a scene's objects are decomposed at once (each on one core):
+    the hulls, labels and concavities are those of the serial run, and progress is one
+    ``objects`` stage counting finished objects, from 0 to all, reported by one thread at a
+    time; with one thread each object's own stages are reported."""
+    from pointcvx import workers
+
+    scene = _lbox_scene(rng)
+    runs = {}
+    for n in (1, 2):
+        calls, inside = [], []
+        lock = threading.Lock()
+
+        def note(stage, done, total, calls=calls, inside=inside, lock=lock):
+            assert lock.acquire(blocking=False), "two threads called progress at once"
+            inside.append(threading.current_thread().name)
+            time.sleep(0.01)  # a slow callback: a second caller would find the lock held
+            calls.append((stage, done, total))
+            lock.release()
+
+        workers.set_threads(n)
+        try:
+            runs[n] = pointcvx.decompose(scene, features="model", n_points=12000, seed=0,
+                                         scene="on", progress=note), calls
+        finally:
+            workers.set_threads(None)
+    (one, serial), (two, parallel) = runs[1], runs[2]
+    assert len(one.objects) == 2 and len(one.hulls) >= 3
+    assert len(one.hulls) == len(two.hulls)
+    for a, b in zip(one.hulls, two.hulls, strict=True):
+        assert np.array_equal(a.vertices, b.vertices) and np.array_equal(a.faces, b.faces)
+    assert np.array_equal(one.labels, two.labels) and np.array_equal(one.concavity, two.concavity)
+    assert [o["hulls"] for o in one.objects] == [o["hulls"] for o in two.objects]
+    assert parallel == [("objects", 0, 2), ("objects", 1, 2), ("objects", 2, 2)]
+    # serially the L reports its features and split (the box, convex, is one hull without them)
+    assert serial and all(s.startswith(("object 1/2 ", "object 2/2 ")) for s, *_ in serial), serial
 
 
 def test_a_scene_is_one_body_per_object_on_a_static_plane_and_rests_in_mujoco(two_boxes, tmp_path):
