@@ -50,6 +50,21 @@ def test_info_writes_cloud_in_input_units(tmp_path, capsys):
     assert np.isclose(max(np.ptp(v[c]) for c in "xyz"), 2.0, atol=1e-4)
 
 
+def test_quiet_json_prints_the_report_and_no_bar(tmp_path):
+    """``-q --json``: no progress bar and no human summary, but the JSON report that --json
+    asks for (a script's way to read hulls and timings); ``-q`` alone prints nothing."""
+    out = tmp_path / "mug.obj"
+    run = run_cli("decompose", str(MUG), "-o", str(out), "-n", "3000", "-q", "--json")
+    assert run.returncode == 0, run.stderr
+    report = json.loads(run.stdout)
+    assert report["hulls"] >= 1 and report["output"] == str(out) and "total" in report["timings"]
+    assert run.stderr == ""
+    quiet = run_cli("decompose", str(MUG), "-o", str(out), "-n", "3000", "-q", "--overwrite")
+    assert quiet.returncode == 0 and quiet.stdout == quiet.stderr == ""
+    info = run_cli("info", str(MUG), "-q", "--json", "-n", "2000")
+    assert info.returncode == 0 and json.loads(info.stdout)["points"] == 2000
+
+
 def test_refuses_to_overwrite_its_input(tmp_path, capsys):
     src = tmp_path / "in.ply"
     src.write_bytes((ROOT / "io" / "mug_scan.ply").read_bytes())

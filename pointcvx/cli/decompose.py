@@ -49,7 +49,8 @@ def add_parser(sub) -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.add_argument("--preview", metavar="FILE.html",
                    help="also write a look at the result: an offline HTML page and FILE.png beside it")
-    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar, no summary")
+    p.add_argument("-q", "--quiet", action="store_true",
+                   help="no progress bar, no summary (with --json the JSON report still)")
     p.add_argument("-v", "--verbose", action="store_true", help="log details to stderr")
     add_flags(p, LoadOptions, defaults={"n_points": DECOMPOSE_POINTS})
     p.set_defaults(func=run)
@@ -159,7 +160,7 @@ def run(args: argparse.Namespace) -> int:
         from ..view import write_view
 
         write_view(args.preview, result, overwrite=args.overwrite)
-    if args.quiet:
+    if args.quiet and not args.json:  # --json asks for the report: it is printed even with -q
         return 0
     summary = result.summary()
     summary["format"] = fmt
