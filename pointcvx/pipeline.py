@@ -305,8 +305,12 @@ def _decompose_scene(cloud: OrientedCloud, pieces: list[np.ndarray], dec: Decomp
     def one(k: int) -> Decomposition:
         obj = cloud.subset(pieces[k]).normalized()
         obj.info["object"] = k
-        report = None if progress is None or at_once else (
-            lambda stage, done, total: progress(f"object {k + 1}/{n} {stage}", done, total))
+        if at_once:  # each step still checks the time limit; the user hears of whole objects
+            report = None if deadline is None else (
+                lambda stage, done, total: deadline.check(f"object {k + 1}/{n} {stage}"))
+        else:
+            report = None if progress is None else (
+                lambda stage, done, total: progress(f"object {k + 1}/{n} {stage}", done, total))
         part = _decompose_cloud(obj, dec, load, {"load": 0.0}, report, deadline)
         if progress is not None and at_once:
             with lock:  # a user's callback is called by one thread at a time

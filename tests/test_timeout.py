@@ -133,3 +133,21 @@ def test_cli_keeps_library_warnings_off_stderr(tmp_path):
     loud = subprocess.run([sys.executable, "-c", code, "info", cup, "-v"], capture_output=True,
                           text=True, timeout=120)
     assert loud.returncode == 0 and "RuntimeWarning: overflow encountered" in loud.stderr
+
+
+def test_a_scenes_objects_at_once_stop_within_a_step_of_the_limit():
+    """With two worker threads a scene's objects run at once and report only whole objects to
+    the user; each of their steps still checks the limit, so the Kinect frame (three objects,
+    about 5 s warm) stops within a step of a 3 s limit, naming the object's stage (checked
+    only between objects, it ran on to the first object's end, over 4 s)."""
+    from pointcvx import workers
+
+    workers.set_threads(2)
+    try:
+        t = time.monotonic()
+        with pytest.raises(TimeLimitError, match=r"3 s \(while object [123]/3 "):
+            pointcvx.decompose(DATA / "raw_scans" / "kinect_frame.pcd", timeout=3.0, seed=0)
+        took = time.monotonic() - t
+    finally:
+        workers.set_threads(None)
+    assert 3.0 <= took < 4.2, took
