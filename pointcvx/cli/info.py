@@ -25,7 +25,8 @@ def add_parser(sub) -> argparse.ArgumentParser:
                    help="write OUT.ply in the normalised [-1, 1]^3 frame instead of input units")
     p.add_argument("--overwrite", action="store_true", help="replace OUT.ply if it exists")
     p.add_argument("--json", action="store_true", help="print the report as JSON")
-    p.add_argument("-q", "--quiet", action="store_true", help="print nothing but errors (and the report, with --json)")
+    p.add_argument("-q", "--quiet", action="store_true",
+                   help="print nothing but errors (and the report, with --json)")
     p.add_argument("-v", "--verbose", action="store_true", help="log details to stderr")
     add_flags(p, LoadOptions)
     p.set_defaults(func=run)
