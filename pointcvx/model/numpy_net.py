@@ -235,8 +235,8 @@ class NumpyFeatureNet:
     weights : dict of name -> float32 array, the torch state dict's names.
     """
 
-    def __init__(self, config, weights: dict[str, np.ndarray]):
-        self.config = config
+    def __init__(self, config, weights: dict[str, np.ndarray], path: str | None = None):
+        self.config, self.path = config, path
         self.w = {k: np.ascontiguousarray(v, dtype=np.float32) for k, v in weights.items()}
         self.dim = config.head.feature_dim
         self.sdf_channels = config.head.sdf_channels
@@ -246,7 +246,7 @@ class NumpyFeatureNet:
         from .config import ModelConfig
 
         state = read_checkpoint(path)
-        return cls(ModelConfig.from_dict(state["config"]), state["model"])
+        return cls(ModelConfig.from_dict(state["config"]), state["model"], str(path))
 
     def _lin(self, name: str, x: np.ndarray) -> np.ndarray:
         return linear(x, self.w[f"{name}.weight"], self.w.get(f"{name}.bias"))
@@ -276,7 +276,23 @@ class NumpyFeatureNet:
         return self._lin("encoder.out", np.concatenate([h, base], axis=1))
 
     def encode(self, xyz: np.ndarray, normals: np.ndarray) -> np.ndarray:
-        """(n, 3) float points and normals (normalised frame) -> (3, C, P, P) float32 planes."""
+        """(n, 3) float points and normals (normalised frame) -> (3, C, P, P) float32 planes.
+        :class:`~pointcvx.errors.InputError` when the checkpoint's weights do not fit its
+        config (found here, where they are used: checking beforehand would cost a forward pass)."""
+        try:
+            return self._encode(xyz, normals)
+        except (KeyError, ValueError, IndexError) as exc:
+            from .weights import bundled_model_path
+
+            bundled = bundled_model_path()
+            if self.path is None or (bundled is not None and self.path == str(bundled.resolve())):
+                raise  # the shipped model fits: anything here is a fault of this code
+            from ..errors import InputError, first_line
+
+            raise InputError(f"{self.path}: not a pointcvx model checkpoint (its weights do not "
+                             f"fit its config: {first_line(exc, 120)})") from None
+
+    def _encode(self, xyz: np.ndarray, normals: np.ndarray) -> np.ndarray:
         xyz = np.asarray(xyz, np.float32)
         normals = np.asarray(normals, np.float32)
         p = self.config.planes

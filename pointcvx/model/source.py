@@ -7,17 +7,24 @@ import os
 import numpy as np
 import torch
 
+from ..errors import InputError, first_line
 from .network import FeatureNet
 from .train import load_checkpoint
 
 
 def load_model(path: str | os.PathLike, map_location: str | torch.device = "cpu") -> FeatureNet:
     """A :class:`FeatureNet` (in eval mode) from a checkpoint written by
-    :func:`~pointcvx.model.train.save_checkpoint` (config and weights are stored together)."""
+    :func:`~pointcvx.model.train.save_checkpoint` (config and weights are stored together).
+    :class:`~pointcvx.errors.InputError` when its weights do not fit the network its config
+    describes (a tensor missing, extra or of another shape)."""
     state = load_checkpoint(path, map_location=map_location)
-    with torch.device(map_location):
-        model = FeatureNet(state["config"])
-    model.load_state_dict(state["model"])
+    try:
+        with torch.device(map_location):
+            model = FeatureNet(state["config"])
+        model.load_state_dict(state["model"])
+    except (KeyError, RuntimeError, TypeError, ValueError) as exc:
+        raise InputError(f"{path}: not a pointcvx model checkpoint (its weights do not fit its "
+                         f"config: {first_line(exc, 120)})") from None
     return model.eval()
 
 
