@@ -122,7 +122,8 @@ def test_a_checkpoint_with_anything_but_tensors_is_refused(tmp_path):
 @pytest.mark.parametrize("views", [1, 2])
 def test_a_checkpoint_whose_weights_do_not_fit_its_config_is_an_input_error(tmp_path, views):
     """A checkpoint that reads but whose tensors do not fit the network its config describes
-    (one missing, one cut short) is the user's bad input: a one-line InputError naming the file
+    (one missing, one cut short), or that holds NaN weights (whose features reached the split's
+    k-means and failed there), is the user's bad input: a one-line InputError naming the file
     from the numpy inference (one view) and from the torch network (the views' ensemble), and
     exit 1 from the command; it was an internal error."""
     import torch
@@ -134,12 +135,14 @@ def test_a_checkpoint_whose_weights_do_not_fit_its_config_is_an_input_error(tmp_
     name = "encoder.mlp.2.weight"
     cut = {**state, "model": {**state["model"], name: state["model"][name][:, :-3]}}
     gone = {**state, "model": {k: v for k, v in state["model"].items() if k != name}}
+    nan = {**state, "model": {**state["model"], name: state["model"][name] * float("nan")}}
     cloud = pointcvx.io.from_trimesh(u_block(), n_points=3000, seed=0)  # concave: features needed
-    for tag, bad in (("cut", cut), ("gone", gone)):
+    unfit = r"its weights do not fit its config"
+    for tag, bad, why in (("cut", cut, unfit), ("gone", gone, unfit),
+                          ("nan", nan, rf"1 weight tensors hold NaN or infinite values: {name}")):
         path = tmp_path / f"{tag}.pt"
         torch.save(bad, path)
-        with pytest.raises(InputError, match=rf"{tag}\.pt: not a pointcvx model checkpoint \(its "
-                                             r"weights do not fit its config"):
+        with pytest.raises(InputError, match=rf"{tag}\.pt: not a pointcvx model checkpoint \({why}"):
             pointcvx.decompose(cloud, features="model", model=path, views=views)
     splat = ROOT / "io" / "mug_splat.ply"
     out = tmp_path / "x.obj"

@@ -238,6 +238,9 @@ class NumpyFeatureNet:
     def __init__(self, config, weights: dict[str, np.ndarray], path: str | None = None):
         self.config, self.path = config, path
         self.w = {k: np.ascontiguousarray(v, dtype=np.float32) for k, v in weights.items()}
+        bad = [k for k, v in self.w.items() if not np.isfinite(v).all()]
+        if bad:  # NaN features would reach the split's k-means (load_cached_model: InputError)
+            raise ValueError(f"{len(bad)} weight tensors hold NaN or infinite values: {bad[0]}, ...")
         self.dim = config.head.feature_dim
         self.sdf_channels = config.head.sdf_channels
 

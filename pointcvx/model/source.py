@@ -16,8 +16,13 @@ def load_model(path: str | os.PathLike, map_location: str | torch.device = "cpu"
     """A :class:`FeatureNet` (in eval mode) from a checkpoint written by
     :func:`~pointcvx.model.train.save_checkpoint` (config and weights are stored together).
     :class:`~pointcvx.errors.InputError` when its weights do not fit the network its config
-    describes (a tensor missing, extra or of another shape)."""
+    describes (a tensor missing, extra or of another shape) or hold NaN or infinite values."""
     state = load_checkpoint(path, map_location=map_location)
+    bad = [k for k, v in state["model"].items()
+           if torch.is_floating_point(v) and not torch.isfinite(v).all()]
+    if bad:  # NaN features would reach the split's k-means
+        raise InputError(f"{path}: not a pointcvx model checkpoint ({len(bad)} weight tensors hold "
+                         f"NaN or infinite values: {bad[0]}, ...)")
     try:
         with torch.device(map_location):
             model = FeatureNet(state["config"])
