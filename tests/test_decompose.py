@@ -209,8 +209,8 @@ def test_cli_decompose_and_evaluate(tmp_path, capsys):
     mesh_path = tmp_path / "l.obj"
     l_block().export(mesh_path)
     out = tmp_path / "hulls.obj"
-    assert main(["decompose", str(mesh_path), "-o", str(out), "-n", "6000", "--json", "-q"]) == 0
-    assert capsys.readouterr().out == ""
+    assert main(["decompose", str(mesh_path), "-o", str(out), "-n", "6000", "-q"]) == 0
+    assert capsys.readouterr().out == ""  # -q: nothing; with --json the report (test_cli.py)
     assert main(["decompose", str(mesh_path), "-o", str(out), "-n", "6000", "--json"]) == EXIT_INPUT
     assert "exists" in capsys.readouterr().err
     assert main(["decompose", str(mesh_path), "-o", str(out), "-n", "6000", "--json",
