@@ -233,10 +233,13 @@ class NumpyFeatureNet:
     ----------
     config : ModelConfig
     weights : dict of name -> float32 array, the torch state dict's names.
+    path : str, optional, the checkpoint read (named in errors).
+    shipped : bool, whether it is the package's own model (whose weights are known to fit).
     """
 
-    def __init__(self, config, weights: dict[str, np.ndarray], path: str | None = None):
-        self.config, self.path = config, path
+    def __init__(self, config, weights: dict[str, np.ndarray], path: str | None = None,
+                 shipped: bool = False):
+        self.config, self.path, self.shipped = config, path, shipped
         self.w = {k: np.ascontiguousarray(v, dtype=np.float32) for k, v in weights.items()}
         bad = [k for k, v in self.w.items() if not np.isfinite(v).all()]
         if bad:  # NaN features would reach the split's k-means (load_cached_model: InputError)
@@ -245,11 +248,12 @@ class NumpyFeatureNet:
         self.sdf_channels = config.head.sdf_channels
 
     @classmethod
-    def load(cls, path: str | os.PathLike) -> NumpyFeatureNet:
+    def load(cls, path: str | os.PathLike, shipped: bool = False) -> NumpyFeatureNet:
+        """The network of checkpoint ``path``; ``shipped``: it is the package's own model."""
         from .config import ModelConfig
 
         state = read_checkpoint(path)
-        return cls(ModelConfig.from_dict(state["config"]), state["model"], str(path))
+        return cls(ModelConfig.from_dict(state["config"]), state["model"], str(path), shipped)
 
     def _lin(self, name: str, x: np.ndarray) -> np.ndarray:
         return linear(x, self.w[f"{name}.weight"], self.w.get(f"{name}.bias"))
@@ -285,10 +289,7 @@ class NumpyFeatureNet:
         try:
             return self._encode(xyz, normals)
         except (KeyError, ValueError, IndexError) as exc:
-            from .weights import bundled_model_path
-
-            bundled = bundled_model_path()
-            if self.path is None or (bundled is not None and self.path == str(bundled.resolve())):
+            if self.path is None or self.shipped:
                 raise  # the shipped model fits: anything here is a fault of this code
             from ..errors import InputError, first_line
 

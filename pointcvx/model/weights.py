@@ -57,7 +57,8 @@ def _cached(path: str, mtime_ns: int, size: int):
     file's mtime and size too, so a rewritten checkpoint is read again)."""
     from .numpy_net import NumpyFeatureNet
 
-    return NumpyFeatureNet.load(path)
+    bundled = bundled_model_path()
+    return NumpyFeatureNet.load(path, shipped=bundled is not None and path == str(bundled.resolve()))
 
 
 def load_cached_model(model: str | os.PathLike | None = None):
