@@ -18,6 +18,26 @@ from typing import Any
 PLANE_AXES = ((0, 1), (0, 2), (1, 2))
 
 
+def _context_lines() -> tuple[tuple[tuple[int, int, bool], ...], ...]:
+    """For each plane k, the lines the other two planes give it (the network's
+    ``cross_plane_context``): (j, the axis of plane j's (c, H, W) image it is averaged over,
+    -2 or -1; whether the line runs along plane k's W axis, i.e. is the same for every row).
+    Each plane shares one axis with each other plane; axes[0] runs along W, axes[1] along H."""
+    out = []
+    for k, axes_k in enumerate(PLANE_AXES):
+        lines = []
+        for j, axes_j in enumerate(PLANE_AXES):
+            if j != k:
+                (shared,) = set(axes_k) & set(axes_j)
+                lines.append((j, -2 if axes_j[0] == shared else -1, axes_k[0] == shared))
+        out.append(tuple(lines))
+    return tuple(out)
+
+
+#: :func:`_context_lines`, shared by the torch network and its numpy inference.
+CONTEXT_LINES = _context_lines()
+
+
 @dataclass
 class EncoderConfig:
     """PVCNN-style point encoder: a shared MLP on (xyz, normal), then voxel blocks.

@@ -23,7 +23,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from .config import PLANE_AXES, ModelConfig
+from .config import CONTEXT_LINES, PLANE_AXES, ModelConfig
 
 
 # -------------------------------------------------------------------------- functional pieces
@@ -155,15 +155,11 @@ def cross_plane_context(planes: torch.Tensor) -> torch.Tensor:
     (b, 3, 2c, P, P) float
     """
     out = []
-    for k, axes_k in enumerate(PLANE_AXES):
+    for lines in CONTEXT_LINES:
         parts = []
-        for j, axes_j in enumerate(PLANE_AXES):
-            if j == k:
-                continue
-            (shared,) = set(axes_k) & set(axes_j)
-            # In (c, H, W) images, axes[0] runs along W (dim -1) and axes[1] along H (dim -2).
-            line = planes[:, j].mean(dim=-2 if axes_j[0] == shared else -1)  # (b, c, P)
-            parts.append(line[:, :, None, :] if axes_k[0] == shared else line[:, :, :, None])
+        for j, axis, along_w in lines:
+            line = planes[:, j].mean(dim=axis)  # (b, c, P)
+            parts.append(line[:, :, None, :] if along_w else line[:, :, :, None])
         p = planes.shape[-1]
         out.append(torch.cat([x.expand(-1, -1, p, p) for x in parts], dim=1))
     return torch.stack(out, dim=1)

@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .config import PLANE_AXES
+from .config import CONTEXT_LINES, PLANE_AXES
 
 _DTYPES = {"FloatStorage": np.float32, "DoubleStorage": np.float64, "HalfStorage": np.float16,
            "LongStorage": np.int64, "IntStorage": np.int32, "BoolStorage": np.bool_,
@@ -192,14 +192,11 @@ def cross_plane_context(planes: np.ndarray) -> np.ndarray:
     """:func:`pointcvx.model.network.cross_plane_context` of (3, c, P, P) planes: (3, 2c, P, P)."""
     out = []
     p = planes.shape[-1]
-    for k, axes_k in enumerate(PLANE_AXES):
+    for lines in CONTEXT_LINES:
         parts = []
-        for j, axes_j in enumerate(PLANE_AXES):
-            if j == k:
-                continue
-            (shared,) = set(axes_k) & set(axes_j)
-            line = planes[j].mean(axis=-2 if axes_j[0] == shared else -1)  # (c, P)
-            part = line[:, None, :] if axes_k[0] == shared else line[:, :, None]
+        for j, axis, along_w in lines:
+            line = planes[j].mean(axis=axis)  # (c, P)
+            part = line[:, None, :] if along_w else line[:, :, None]
             parts.append(np.broadcast_to(part, (line.shape[0], p, p)))
         out.append(np.concatenate(parts, axis=0))
     return np.stack(out)
