@@ -145,11 +145,10 @@ def compute_features(cloud: OrientedCloud, solid, *, method: str = "auto", seed:
     """
     method = resolve_features(method, cloud.modality, model)
     if method == "model":
-        net = load_cached_model(model)  # numpy: a decomposition with one view imports no torch
-        if views == 1:
+        if views == 1:  # numpy: a decomposition with one view imports no torch
             from .model.numpy_net import NumpyModelSource
 
-            source = NumpyModelSource(net, cloud.points, cloud.normals)
+            source = NumpyModelSource(load_cached_model(model), cloud.points, cloud.normals)
         else:  # the rotated views of the test-time ensemble run in torch
             from .model.source import ModelFeatureSource, load_model
             from .model.weights import model_path
