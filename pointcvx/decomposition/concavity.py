@@ -223,6 +223,17 @@ def _max_outside_holes(solid, samples: np.ndarray, points: np.ndarray, normals: 
         m *= 4
 
 
+def _sample_distances(samples: np.ndarray, points: np.ndarray, normals) -> np.ndarray:
+    """(n,) float: the distance from each of (n, 3) hull ``samples`` to the part's (m, 3)
+    ``points``: :func:`hole_aware_distance` given their (m, 3) ``normals``, else
+    :func:`nearest_distance`."""
+    if not len(samples):
+        return np.zeros(0)
+    if normals is None:
+        return nearest_distance(samples, points)
+    return hole_aware_distance(samples, points, normals)
+
+
 def sample_spacing(points: np.ndarray, tree=None) -> float:
     """Median distance from each of the (n, 3) ``points`` to its nearest neighbour. ``tree``:
     a ``scipy.spatial.cKDTree`` of ``points`` if already built."""
@@ -325,20 +336,11 @@ def part_concavity(
         hull = convex_hull(pts)
     rng = np.random.default_rng(seed)
     hs = sample_hull_surface(hull, int(n_hull_samples), rng)
-    lazy = solid is not None and normals is not None and len(hs) > 0  # _max_outside_holes
-    if not len(hs):
-        d_hs = np.zeros(0)
-    elif lazy:
-        d_hs = None
-    elif normals is not None:
-        d_hs = hole_aware_distance(hs, pts, normals)
-    else:
-        d_hs = nearest_distance(hs, pts)
     hb_part = max_inside_depth(hull, pts, hull.index if own_hull else None)
     part_volume = hull.volume
     outside_fraction = 0.0
     if solid is None:
-        hb_hull = float(d_hs.max(initial=0.0))
+        hb_hull = float(_sample_distances(hs, pts, normals).max(initial=0.0))
     else:
         if hull.volume > 0 and n_volume_samples > 0:
             vs = sample_hull_interior(hull, int(n_volume_samples), rng)
@@ -352,11 +354,11 @@ def part_concavity(
         if surface_gap is None:
             surface_gap = GAP_SPACINGS * sample_spacing(pts)
         tol = SURFACE_TOL if surface_tol is None else surface_tol
-        if lazy:
+        if normals is not None and len(hs):  # the hole test only where it decides
             hb_hull = _max_outside_holes(solid, hs, pts, np.asarray(normals, dtype=np.float64).reshape(-1, 3),
                                          surface_gap, tol, foreign)
         else:
-            hb_hull = _max_outside(solid, hs, d_hs, surface_gap, tol, foreign)
+            hb_hull = _max_outside(solid, hs, _sample_distances(hs, pts, None), surface_gap, tol, foreign)
     terms = concavity_terms(hb_part, hb_hull, hull.volume, part_volume, k)
     terms["outside_fraction"] = outside_fraction
     return terms if return_terms else terms["concavity"]
