@@ -34,6 +34,31 @@ def dev_files(category: str | None = None) -> list[Path]:
     return sorted(f for d in folders for f in d.iterdir() if f.is_file())
 
 
+def collision_vertices(model, data, body: int | None = None):
+    """(n, 3) float: every vertex of every collision geom (group 3) of a MuJoCo model, or of one
+    ``body`` (its id), in world coordinates, in a fixed order: where the objects' surfaces are,
+    whatever frame their bodies have."""
+    import numpy as np
+
+    out = []
+    for g in np.flatnonzero(model.geom_group == 3):
+        if body is not None and model.geom_bodyid[g] != body:
+            continue
+        mesh = model.geom_dataid[g]
+        start, count = model.mesh_vertadr[mesh], model.mesh_vertnum[mesh]
+        local = model.mesh_vert[start:start + count]
+        out.append(local @ data.geom_xmat[g].reshape(3, 3).T + data.geom_xpos[g])
+    return np.concatenate(out)
+
+
+def largest_move(model, data, start, body: int | None = None) -> float:
+    """How far the collision vertex that moved most (of all, or of ``body``) is from where it was
+    in ``start`` (:func:`collision_vertices` then), in model units."""
+    import numpy as np
+
+    return float(np.linalg.norm(collision_vertices(model, data, body) - start, axis=1).max())
+
+
 @pytest.fixture(scope="session")
 def data_dir() -> Path:
     if not DATA.is_dir():

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import pointcvx
-from conftest import DATA
+from conftest import DATA, collision_vertices
 
 MUG = DATA / "dev" / "objects" / "mug.obj"  # 82 mm wide, 100 mm tall, metres, open top
 RIM, INNER_RADIUS, BALL = 0.1, 0.0325, 0.01
@@ -35,17 +35,6 @@ def _scene(mujoco, xml, body, pos, quat=(1.0, 0.0, 0.0, 0.0)):
     return spec
 
 
-def _collision_vertices(mujoco, model, data) -> np.ndarray:
-    """(n, 3) float: every vertex of every collision geom (group 3), in world coordinates."""
-    out = []
-    for g in np.flatnonzero(model.geom_group == 3):
-        mesh = model.geom_dataid[g]
-        start, count = model.mesh_vertadr[mesh], model.mesh_vertnum[mesh]
-        local = model.mesh_vert[start:start + count]
-        out.append(local @ data.geom_xmat[g].reshape(3, 3).T + data.geom_xpos[g])
-    return np.concatenate(out)
-
-
 def test_dropped_mug_comes_to_rest_standing_on_the_floor(mujoco, mug, tmp_path):
     xml = mug.export(tmp_path / "mug.xml")[0]
     tilt = 0.3  # radians about x: it lands on its rim edge first
@@ -57,8 +46,8 @@ def test_dropped_mug_comes_to_rest_standing_on_the_floor(mujoco, mug, tmp_path):
     heights = []
     for _ in range(int(3.0 / model.opt.timestep)):
         mujoco.mj_step(model, data)
-        heights.append(_collision_vertices(mujoco, model, data)[:, 2].min())
-    verts = _collision_vertices(mujoco, model, data)
+        heights.append(collision_vertices(model, data)[:, 2].min())
+    verts = collision_vertices(model, data)
     up = data.xmat[model.body("mug").id].reshape(3, 3)[:, 2]
     assert np.abs(data.qvel).max() < 1e-3  # at rest
     assert -1e-3 < verts[:, 2].min() < 1e-3  # on the floor: touching, not sunk

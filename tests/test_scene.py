@@ -11,7 +11,7 @@ import pytest
 
 import pointcvx
 import pointcvx.evaluate
-from conftest import ROOT
+from conftest import ROOT, collision_vertices, largest_move
 from pointcvx.io import as_cloud
 from pointcvx.scene import base_samples, components, isolate, support_plane
 
@@ -373,11 +373,11 @@ def test_an_object_held_over_the_floor_is_a_static_body_in_the_scene_files(rng, 
     assert model.body_jntnum[held] == 0 and model.body_jntnum[standing] == 1
     data = mujoco.MjData(model)
     mujoco.mj_forward(model, data)
-    start = data.xpos.copy()
+    start, start_held = collision_vertices(model, data, standing), collision_vertices(model, data, held)
     for _ in range(int(1.0 / model.opt.timestep)):
         mujoco.mj_step(model, data)
-    assert np.linalg.norm(data.xpos[held] - start[held]) == 0.0
-    assert np.linalg.norm(data.xpos[standing] - start[standing]) < 0.01
+    assert largest_move(model, data, start_held, held) == 0.0
+    assert largest_move(model, data, start, standing) < 0.01
     pytest.importorskip("pxr")
     from pxr import Usd, UsdPhysics
 
@@ -474,6 +474,14 @@ def test_a_scene_is_one_body_per_object_on_a_static_plane_and_rests_in_mujoco(tw
     assert plane >= 0 and model.geom_type[plane] == mujoco.mjtGeom.mjGEOM_PLANE
     data = mujoco.MjData(model)
     mujoco.mj_forward(model, data)
+    for b, obj in enumerate(result.objects, start=1):
+        # each body's frame sits at its object's centre of mass, and its hulls where they were
+        # decomposed (turned by the body's rotation, which takes the scene's up to +z)
+        assert np.allclose(data.xipos[b], data.xpos[b], atol=1e-6)
+        assert np.linalg.norm(data.xpos[b]) > 0.1  # the objects stand away from the origin
+        mine = np.concatenate([result.hulls[h].vertices for h in obj["hulls"]]) @ data.xmat[b].reshape(3, 3).T
+        there = collision_vertices(model, data, b)
+        assert np.allclose([there.min(0), there.max(0)], [mine.min(0), mine.max(0)], atol=1e-5)
     start = data.xpos[1:].copy()
     for _ in range(int(1.5 / model.opt.timestep)):
         mujoco.mj_step(model, data)

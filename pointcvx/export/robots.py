@@ -245,15 +245,23 @@ def _mjcf_assets(bodies: list[Body], q) -> list[str]:
     return lines
 
 
-def _mjcf_body(body: Body, free_joint: bool, rotation: np.ndarray, q, indent: str = "    ") -> list[str]:
+def _mjcf_body(body: Body, free_joint: bool, rotation: np.ndarray, q, indent: str = "    ",
+               at_center: bool = False) -> list[str]:
+    """A ``<body>`` turned by ``rotation``; with ``at_center`` its frame sits at ``body.center``
+    (the geoms shifted back by it), so the body's position is where the object is, and a small
+    turn of an object far from the origin does not read as a large move of its frame."""
     turn = "" if np.allclose(rotation, np.eye(3)) else f' quat="{_vec(quaternion(rotation))}"'
-    lines = [f"{indent}<body name={q(body.name)}{turn}>"]
+    place, shift = "", ""
+    if at_center and np.any(body.center):
+        place, shift = f' pos="{_vec(rotation @ body.center)}"', f' pos="{_vec(-np.asarray(body.center))}"'
+    lines = [f"{indent}<body name={q(body.name)}{place}{turn}>"]
     if free_joint:
         lines.append(f"{indent}  <freejoint name={q(body.name + '_free')}/>")
     for f in body.visual:
-        lines.append(f'{indent}  <geom mesh={q(Path(f).stem)} class="visual"/>')
+        lines.append(f'{indent}  <geom mesh={q(Path(f).stem)} class="visual"{shift}/>')
     for f in body.collision:
-        lines.append(f'{indent}  <geom name={q(Path(f).stem)} mesh={q(Path(f).stem)} class="collision"/>')
+        stem = q(Path(f).stem)
+        lines.append(f'{indent}  <geom name={stem} mesh={stem} class="collision"{shift}/>')
     return lines + [f"{indent}</body>"]
 
 
@@ -277,8 +285,8 @@ def mjcf_scene_text(name: str, bodies: list[Body], rotation: np.ndarray, support
                     free_joint: bool = True, density: float = 1000.0, walls: tuple = ()) -> str:
     """An MJCF model of a scene: the support as a static plane geom, each of ``walls``
     (:class:`StaticBox`) as a static box geom, and one body per object (free unless
-    ``free_joint`` is False or the body is ``static``), all turned by ``rotation`` so the
-    scene's up is +z."""
+    ``free_joint`` is False or the body is ``static``, its frame at the object's centre of
+    mass), all turned by ``rotation`` so the scene's up is +z."""
     from xml.sax.saxutils import quoteattr as q
 
     lines = [*_mjcf_head(name, density, q), *_mjcf_assets(bodies, q), "  </asset>", "  <worldbody>"]
@@ -292,6 +300,6 @@ def mjcf_scene_text(name: str, bodies: list[Body], rotation: np.ndarray, support
         lines.append(f'    <geom name="wall_{k:02d}" type="box" size="{_vec(np.asarray(extents) / 2)}" '
                      f'pos="{_vec(rotation @ centre)}" quat="{_vec(quaternion(rotation @ frame))}"/>')
     for body in bodies:
-        lines += _mjcf_body(body, free_joint and not body.static, rotation, q)
+        lines += _mjcf_body(body, free_joint and not body.static, rotation, q, at_center=True)
     lines += ["  </worldbody>", "</mujoco>"]
     return "\n".join(lines) + "\n"
