@@ -485,7 +485,7 @@ def merge_parts(parts: list[Decomposition], pieces: list[np.ndarray], cloud: Ori
         obj["rests_on"] = objects[on]["name"] if isinstance(on, int) else on
         obj["stands"] = stands  # its centre of mass over where it touches what it rests on
         obj["static"] = stands is False
-    for key in ("noise_points", "grounded_hulls"):
+    for key in ("noise_points", "air_points", "grounded_hulls"):
         count = sum(int(part.cloud.info.get(key, 0)) for part in parts)
         if count or key in cloud.info:
             cloud = cloud.replace(info={**cloud.info, key: count})
