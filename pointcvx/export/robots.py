@@ -245,14 +245,14 @@ def _mjcf_assets(bodies: list[Body], q) -> list[str]:
     return lines
 
 
-def _mjcf_body(body: Body, free_joint: bool, rotation: np.ndarray, q, indent: str = "    ",
-               at_center: bool = False) -> list[str]:
-    """A ``<body>`` turned by ``rotation``; with ``at_center`` its frame sits at ``body.center``
-    (the geoms shifted back by it), so the body's position is where the object is, and a small
-    turn of an object far from the origin does not read as a large move of its frame."""
+def _mjcf_body(body: Body, free_joint: bool, rotation: np.ndarray, q, indent: str = "    ") -> list[str]:
+    """A ``<body>`` turned by ``rotation``, its frame at ``body.center`` (the geoms shifted back
+    by it; a body without mass properties stays at the origin), so the body's position is where
+    the object is, and a small turn of an object far from the origin does not read as a large
+    move of its frame."""
     turn = "" if np.allclose(rotation, np.eye(3)) else f' quat="{_vec(quaternion(rotation))}"'
     place, shift = "", ""
-    if at_center and np.any(body.center):
+    if np.any(body.center):
         place, shift = f' pos="{_vec(rotation @ body.center)}"', f' pos="{_vec(-np.asarray(body.center))}"'
     lines = [f"{indent}<body name={q(body.name)}{place}{turn}>"]
     if free_joint:
@@ -300,6 +300,6 @@ def mjcf_scene_text(name: str, bodies: list[Body], rotation: np.ndarray, support
         lines.append(f'    <geom name="wall_{k:02d}" type="box" size="{_vec(np.asarray(extents) / 2)}" '
                      f'pos="{_vec(rotation @ centre)}" quat="{_vec(quaternion(rotation @ frame))}"/>')
     for body in bodies:
-        lines += _mjcf_body(body, free_joint and not body.static, rotation, q, at_center=True)
+        lines += _mjcf_body(body, free_joint and not body.static, rotation, q)
     lines += ["  </worldbody>", "</mujoco>"]
     return "\n".join(lines) + "\n"
